@@ -1,0 +1,136 @@
+"""The frame and sequence types every loader returns."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from slam.errors import CalibrationError
+from slam.trajectory import Trajectory
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Pinhole intrinsics (pixels) and the depth scale (stored depth value / depth_scale = metres)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    depth_scale: float = 5000.0
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise CalibrationError(f"image size must be positive, got {self.width}x{self.height}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise CalibrationError(f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
+        if self.depth_scale <= 0:
+            raise CalibrationError(f"depth_scale must be positive, got {self.depth_scale}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def scaled(self, factor: int) -> Calibration:
+        """Intrinsics of the image downsampled by an integer ``factor`` (pixel-centre convention)."""
+        if factor == 1:
+            return self
+        return Calibration(
+            width=self.width // factor,
+            height=self.height // factor,
+            fx=self.fx / factor,
+            fy=self.fy / factor,
+            cx=(self.cx + 0.5) / factor - 0.5,
+            cy=(self.cy + 0.5) / factor - 0.5,
+            depth_scale=self.depth_scale,
+        )
+
+    def to_dict(self) -> dict:
+        return {
+            "width": self.width,
+            "height": self.height,
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+            "depth_scale": self.depth_scale,
+        }
+
+
+@dataclass
+class Frame:
+    """One RGB-D frame.
+
+    ``color`` is HxWx3 uint8 RGB (or ``None`` for depth-only sequences); ``depth_m`` is HxW float32
+    metres with 0 meaning no depth; ``K`` is the 3x3 intrinsic matrix of the depth image.
+    """
+
+    index: int
+    timestamp: float
+    color: np.ndarray | None
+    depth_m: np.ndarray
+    K: np.ndarray
+
+    @property
+    def height(self) -> int:
+        return int(self.depth_m.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.depth_m.shape[1])
+
+
+class Sequence(ABC):
+    """A recorded RGB-D sequence: ``len()``, indexing, iteration, calibration, optional ground truth.
+
+    Indexing may raise :class:`slam.errors.FrameReadError` for a corrupt frame; iteration does too,
+    so callers that want to skip bad frames index explicitly.
+    """
+
+    path: Path
+    calibration: Calibration
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    @property
+    def ground_truth(self) -> Trajectory | None:
+        """Ground-truth trajectory (camera-to-world) when the sequence has one, for evaluation only."""
+        return None
+
+    @property
+    def has_color(self) -> bool:
+        return True
+
+    @abstractmethod
+    def __len__(self) -> int: ...
+
+    @abstractmethod
+    def timestamp(self, index: int) -> float:
+        """Timestamp of frame ``index`` in seconds, without reading images."""
+
+    @abstractmethod
+    def _read(self, index: int) -> Frame: ...
+
+    def __getitem__(self, index: int) -> Frame:
+        n = len(self)
+        if index < 0:
+            index += n
+        if not 0 <= index < n:
+            raise IndexError(f"frame index {index} out of range for {n} frames")
+        return self._read(index)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def timestamps(self) -> np.ndarray:
+        return np.array([self.timestamp(i) for i in range(len(self))])

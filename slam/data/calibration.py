@@ -1,0 +1,75 @@
+"""Finding a sequence's calibration: ``calibration.yaml``, TUM defaults by camera, or overrides."""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from slam.data.base import Calibration
+from slam.errors import CalibrationError
+
+log = logging.getLogger(__name__)
+
+#: TUM RGB-D default intrinsics (ROS defaults published with the benchmark), depth scale 5000.
+TUM_DEFAULTS = {
+    "freiburg1": Calibration(640, 480, 517.3, 516.5, 318.6, 255.3, 5000.0),
+    "freiburg2": Calibration(640, 480, 520.9, 521.0, 325.1, 249.7, 5000.0),
+    "freiburg3": Calibration(640, 480, 535.4, 539.2, 320.1, 247.6, 5000.0),
+}
+
+#: Microsoft 7-Scenes (Kinect v1 depth camera), depth in millimetres.
+SEVEN_SCENES_DEFAULT = Calibration(640, 480, 585.0, 585.0, 320.0, 240.0, 1000.0)
+
+KEYS = ("width", "height", "fx", "fy", "cx", "cy", "depth_scale")
+
+
+def read_calibration_yaml(path: Path) -> Calibration:
+    """Read ``calibration.yaml`` (keys width, height, fx, fy, cx, cy, depth_scale)."""
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise CalibrationError(f"{path}: cannot read calibration: {exc}") from exc
+    if not isinstance(data, dict):
+        raise CalibrationError(f"{path}: expected a mapping with keys {', '.join(KEYS)}")
+    missing = [k for k in KEYS if k not in data]
+    if missing:
+        raise CalibrationError(f"{path}: missing keys {missing}; expected {', '.join(KEYS)}")
+    try:
+        return Calibration(
+            width=int(data["width"]),
+            height=int(data["height"]),
+            fx=float(data["fx"]),
+            fy=float(data["fy"]),
+            cx=float(data["cx"]),
+            cy=float(data["cy"]),
+            depth_scale=float(data["depth_scale"]),
+        )
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{path}: non-numeric calibration value: {exc}") from exc
+
+
+def tum_default_for(folder: Path) -> Calibration | None:
+    """TUM default intrinsics when the folder name says freiburg1/2/3 (or fr1/fr2/fr3)."""
+    name = folder.resolve().name.lower()
+    m = re.search(r"(?:freiburg|fr)([123])", name)
+    if m is None:
+        return None
+    return TUM_DEFAULTS[f"freiburg{m.group(1)}"]
+
+
+def apply_overrides(calib: Calibration, overrides: dict[str, Any] | None) -> Calibration:
+    """Replace calibration fields by non-null override values (from config or CLI)."""
+    if not overrides:
+        return calib
+    values = calib.to_dict()
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        if key not in values:
+            raise CalibrationError(f"unknown calibration override {key!r}; expected one of {KEYS}")
+        values[key] = value
+    return Calibration(**values)

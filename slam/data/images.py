@@ -1,0 +1,40 @@
+"""Image decoding shared by the loaders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from slam.errors import FrameReadError
+
+
+def read_color(path: Path, index: int) -> np.ndarray:
+    """Read a colour image as HxWx3 uint8 RGB; raise FrameReadError naming file and frame."""
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise FrameReadError(f"frame {index}: cannot decode colour image {path} (missing or corrupt)")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def read_depth(
+    path: Path, index: int, depth_scale: float, invalid_value: int | None = None
+) -> np.ndarray:
+    """Read a 16-bit depth PNG as float32 metres (0 = no depth)."""
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise FrameReadError(f"frame {index}: cannot decode depth image {path} (missing or corrupt)")
+    if raw.ndim != 2:
+        raise FrameReadError(
+            f"frame {index}: depth image {path} has shape {raw.shape}, expected a single channel"
+        )
+    if raw.dtype not in (np.uint16, np.float32):
+        raise FrameReadError(
+            f"frame {index}: depth image {path} has dtype {raw.dtype}, expected uint16 (or float32)"
+        )
+    if invalid_value is not None and raw.dtype == np.uint16:
+        raw = np.where(raw == invalid_value, 0, raw)
+    depth = raw.astype(np.float32) / np.float32(depth_scale)
+    depth[~np.isfinite(depth)] = 0.0
+    return depth

@@ -1,0 +1,210 @@
+"""TUM RGB-D layout: ``rgb.txt``, ``depth.txt``, optional ``groundtruth.txt`` and ``calibration.yaml``."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from slam.data.base import Calibration, Frame, Sequence
+from slam.data.calibration import apply_overrides, read_calibration_yaml, tum_default_for
+from slam.data.images import read_color, read_depth
+from slam.errors import CalibrationError, DatasetError, TrajectoryError
+from slam.trajectory import Trajectory, read_tum
+
+log = logging.getLogger(__name__)
+
+
+def read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
+    """Read a TUM ``timestamp filename`` list (``#`` comments). Returns sorted stamps and names."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: list file not found (TUM layout needs rgb.txt and depth.txt)")
+    stamps: list[float] = []
+    names: list[str] = []
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.replace(",", " ").split()
+        if len(parts) < 2:
+            raise DatasetError(f"{path}:{lineno}: expected 'timestamp filename', got {line!r}")
+        try:
+            stamps.append(float(parts[0]))
+        except ValueError as exc:
+            raise DatasetError(f"{path}:{lineno}: bad timestamp {parts[0]!r}") from exc
+        names.append(parts[1])
+    if not stamps:
+        raise DatasetError(f"{path}: no entries")
+    order = np.argsort(stamps, kind="stable")
+    return np.asarray(stamps)[order], [names[i] for i in order]
+
+
+def associate(a: np.ndarray, b: np.ndarray, max_diff: float = 0.02) -> list[tuple[int, int]]:
+    """One-to-one nearest-timestamp association (TUM ``associate.py`` semantics).
+
+    Candidate pairs closer than ``max_diff`` are taken greedily by increasing time difference,
+    each index used at most once. Returns index pairs sorted by ``a``.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if len(a) == 0 or len(b) == 0:
+        return []
+    # candidates: for each a, the b neighbours around its insertion point (sorted b); widen a few
+    # positions so greedy one-to-one choice still sees alternatives.
+    pos = np.searchsorted(b, a)
+    ia_list, ib_list = [], []
+    for off in (-2, -1, 0, 1):
+        ib = pos + off
+        ok = (ib >= 0) & (ib < len(b))
+        ia_list.append(np.nonzero(ok)[0])
+        ib_list.append(ib[ok])
+    ia = np.concatenate(ia_list)
+    ib = np.concatenate(ib_list)
+    diff = np.abs(a[ia] - b[ib])
+    keep = diff < max_diff
+    ia, ib, diff = ia[keep], ib[keep], diff[keep]
+    order = np.lexsort((ib, ia, diff))
+    used_a = np.zeros(len(a), bool)
+    used_b = np.zeros(len(b), bool)
+    pairs = []
+    for k in order:  # loop over candidate pairs (a few per frame), not pixels
+        i, j = ia[k], ib[k]
+        if not used_a[i] and not used_b[j]:
+            used_a[i] = used_b[j] = True
+            pairs.append((int(i), int(j)))
+    pairs.sort()
+    return pairs
+
+
+def interpolate_poses(traj: Trajectory, stamps: np.ndarray, max_gap: float = 0.1) -> Trajectory:
+    """Poses of ``traj`` at ``stamps``: linear/slerp between neighbours at most ``max_gap`` apart.
+
+    Stamps outside the trajectory's range or inside a larger gap are dropped.
+    """
+    t = traj.timestamps
+    if len(t) < 2:
+        keep = np.isin(stamps, t)
+        return Trajectory(stamps[keep], traj.poses[np.searchsorted(t, stamps[keep])])
+    idx = np.searchsorted(t, stamps, side="right") - 1
+    idx = np.clip(idx, 0, len(t) - 2)
+    t0, t1 = t[idx], t[idx + 1]
+    near = np.minimum(np.abs(stamps - t0), np.abs(stamps - t1)) < 1e-4  # a sample at the stamp
+    inside = (stamps >= t[0] - 1e-9) & (stamps <= t[-1] + 1e-9) & ((t1 - t0 <= max_gap) | near)
+    s = stamps[inside]
+    i0 = idx[inside]
+    alpha = np.clip((s - t[i0]) / np.maximum(t[i0 + 1] - t[i0], 1e-12), 0.0, 1.0)
+    rot = Rotation.from_matrix(traj.poses[:, :3, :3])
+    slerp = Slerp(t, rot)
+    poses = np.tile(np.eye(4), (len(s), 1, 1))
+    poses[:, :3, :3] = slerp(np.clip(s, t[0], t[-1])).as_matrix()
+    p = traj.positions
+    poses[:, :3, 3] = p[i0] * (1 - alpha)[:, None] + p[i0 + 1] * alpha[:, None]
+    return Trajectory(s, poses)
+
+
+class TumSequence(Sequence):
+    """A sequence in TUM RGB-D layout.
+
+    Frames are the one-to-one nearest-timestamp pairs of ``rgb.txt`` and ``depth.txt`` (within
+    ``max_dt`` seconds); a frame's timestamp is its colour image's. Without ``rgb.txt`` the sequence
+    is depth-only. Calibration: ``calibration.yaml`` in the folder, else the TUM defaults when the
+    folder name says freiburg1/2/3, else a :class:`CalibrationError`; ``calibration_overrides``
+    (from config/CLI) replace single fields.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        calibration_overrides: dict | None = None,
+        max_dt: float = 0.02,
+    ) -> None:
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise DatasetError(f"{self.path}: sequence folder not found")
+        depth_stamps, depth_names = read_file_list(self.path / "depth.txt")
+        rgb_list = self.path / "rgb.txt"
+        if rgb_list.is_file():
+            rgb_stamps, rgb_names = read_file_list(rgb_list)
+            pairs = associate(rgb_stamps, depth_stamps, max_dt)
+            if not pairs:
+                raise DatasetError(
+                    f"{self.path}: no rgb/depth pair within {max_dt} s: rgb.txt spans "
+                    f"[{rgb_stamps[0]:.3f}, {rgb_stamps[-1]:.3f}], depth.txt spans "
+                    f"[{depth_stamps[0]:.3f}, {depth_stamps[-1]:.3f}]"
+                )
+            self._stamps = np.array([rgb_stamps[i] for i, _ in pairs])
+            self._rgb: list[str] | None = [rgb_names[i] for i, _ in pairs]
+            self._depth = [depth_names[j] for _, j in pairs]
+            dropped = len(rgb_stamps) - len(pairs)
+            if dropped:
+                log.info("%s: %d rgb images without a depth match were dropped", self.path, dropped)
+        else:
+            self._stamps = depth_stamps
+            self._rgb = None
+            self._depth = depth_names
+        self.calibration = apply_overrides(self._find_calibration(), calibration_overrides)
+        self._gt: Trajectory | None = None
+        self._gt_loaded = False
+        self._check_first_files()
+
+    def _find_calibration(self) -> Calibration:
+        yaml_path = self.path / "calibration.yaml"
+        if yaml_path.is_file():
+            return read_calibration_yaml(yaml_path)
+        default = tum_default_for(self.path)
+        if default is not None:
+            log.info("%s: no calibration.yaml, using TUM defaults by folder name", self.path)
+            return default
+        raise CalibrationError(
+            f"{self.path}: no calibration.yaml and the folder name does not say freiburg1/2/3; "
+            "add calibration.yaml (width, height, fx, fy, cx, cy, depth_scale) or pass the "
+            "intrinsics in the config section 'dataset.calibration'"
+        )
+
+    def _check_first_files(self) -> None:
+        missing = [n for n in self._depth[:1] + (self._rgb or [])[:1] if not (self.path / n).is_file()]
+        if missing:
+            raise DatasetError(f"{self.path}: image listed but not found: {missing[0]}")
+
+    @property
+    def has_color(self) -> bool:
+        return self._rgb is not None
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def timestamp(self, index: int) -> float:
+        return float(self._stamps[index])
+
+    def timestamps(self) -> np.ndarray:
+        return self._stamps.copy()
+
+    def _read(self, index: int) -> Frame:
+        depth = read_depth(self.path / self._depth[index], index, self.calibration.depth_scale)
+        color = None
+        if self._rgb is not None:
+            color = read_color(self.path / self._rgb[index], index)
+            if color.shape[:2] != depth.shape:
+                color = _resize_to(color, depth.shape)
+        return Frame(index, float(self._stamps[index]), color, depth, self.calibration.K)
+
+    @property
+    def ground_truth(self) -> Trajectory | None:
+        """``groundtruth.txt`` interpolated at the frame timestamps (frames it covers)."""
+        if not self._gt_loaded:
+            self._gt_loaded = True
+            gt_path = self.path / "groundtruth.txt"
+            if gt_path.is_file():
+                try:
+                    self._gt = interpolate_poses(read_tum(gt_path), self._stamps)
+                except TrajectoryError as exc:
+                    log.warning("%s: ground truth unreadable, evaluation disabled: %s", gt_path, exc)
+        return self._gt
+
+
+def _resize_to(img: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    import cv2
+
+    return cv2.resize(img, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)

@@ -1,0 +1,78 @@
+"""ORB features lifted to 3D by depth, and descriptor matching.
+
+Shared by tracking (RANSAC seed/rescue), revisit detection and relocalisation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass
+class FeatureSet:
+    """ORB keypoints with valid depth: pixels (N, 2), descriptors (N, 32) uint8, 3D points (N, 3)
+    in the camera frame (metres)."""
+
+    pixels: np.ndarray
+    descriptors: np.ndarray
+    points_cam: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pixels)
+
+    @staticmethod
+    def empty() -> FeatureSet:
+        return FeatureSet(np.zeros((0, 2)), np.zeros((0, 32), np.uint8), np.zeros((0, 3)))
+
+
+class OrbExtractor:
+    """ORB detection on the grey image; keypoints kept only where depth is valid."""
+
+    def __init__(self, n_features: int = 1000, depth_min_m: float = 0.2, depth_max_m: float = 4.0):
+        self.orb = cv2.ORB_create(nfeatures=n_features, fastThreshold=10)
+        self.depth_min_m = depth_min_m
+        self.depth_max_m = depth_max_m
+
+    def extract(self, color: np.ndarray, depth_m: np.ndarray, K: np.ndarray) -> FeatureSet:
+        grey = cv2.cvtColor(color, cv2.COLOR_RGB2GRAY) if color.ndim == 3 else color
+        keypoints, desc = self.orb.detectAndCompute(grey, None)
+        if desc is None or not keypoints:
+            return FeatureSet.empty()
+        px = np.array([kp.pt for kp in keypoints], dtype=np.float64)
+        # depth at the keypoint: nearest pixel of the depth image (which may differ in size)
+        sy = depth_m.shape[0] / grey.shape[0]
+        sx = depth_m.shape[1] / grey.shape[1]
+        ui = np.clip(np.round(px[:, 0] * sx).astype(int), 0, depth_m.shape[1] - 1)
+        vi = np.clip(np.round(px[:, 1] * sy).astype(int), 0, depth_m.shape[0] - 1)
+        z = depth_m[vi, ui].astype(np.float64)
+        ok = (z > self.depth_min_m) & (z < self.depth_max_m)
+        u, v, z = ui[ok].astype(float), vi[ok].astype(float), z[ok]
+        pts = np.stack(
+            [(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1
+        )
+        return FeatureSet(px[ok], desc[ok], pts)
+
+
+def match_descriptors(a: np.ndarray, b: np.ndarray, ratio: float = 0.8) -> np.ndarray:
+    """Hamming matches ``a -> b`` passing Lowe's ratio test and mutual consistency.
+
+    Returns (M, 2) index pairs ``(i_a, i_b)``.
+    """
+    if len(a) < 2 or len(b) < 2:
+        return np.zeros((0, 2), dtype=int)
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+    knn = bf.knnMatch(a, b, k=2)
+    pairs = [
+        (m[0].queryIdx, m[0].trainIdx)
+        for m in knn
+        if len(m) == 2 and m[0].distance < ratio * m[1].distance
+    ]
+    if not pairs:
+        return np.zeros((0, 2), dtype=int)
+    pairs_arr = np.array(pairs, dtype=int)
+    # keep each b index once (the first, i.e. unique best), a cheap mutual filter
+    _, first = np.unique(pairs_arr[:, 1], return_index=True)
+    return pairs_arr[np.sort(first)]

@@ -1,0 +1,94 @@
+"""Back-projection of depth images to vertex and normal maps, and depth pyramids (vectorised)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def backproject(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Vertex map HxWx3 in the camera frame: ``v = depth * K^-1 [u, v, 1]``; zero where no depth."""
+    h, w = depth_m.shape
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    u = (np.arange(w, dtype=np.float32) - cx) / fx
+    v = (np.arange(h, dtype=np.float32) - cy) / fy
+    z = depth_m.astype(np.float32)
+    return np.stack([z * u[None, :], z * v[:, None], z], axis=-1)
+
+
+def project(points: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (N, 2) of camera-frame points (N, 3) with z > 0."""
+    z = points[:, 2]
+    return np.stack(
+        [K[0, 0] * points[:, 0] / z + K[0, 2], K[1, 1] * points[:, 1] / z + K[1, 2]], axis=-1
+    )
+
+
+def normal_map(vertex: np.ndarray, max_depth_jump_m: float = 0.05) -> np.ndarray:
+    """Normals from central differences of the vertex map, oriented towards the camera.
+
+    Zero where a neighbour has no depth or lies across a depth discontinuity.
+    """
+    z = vertex[..., 2]
+    dx = np.zeros_like(vertex)
+    dy = np.zeros_like(vertex)
+    dx[:, 1:-1] = vertex[:, 2:] - vertex[:, :-2]
+    dy[1:-1, :] = vertex[2:, :] - vertex[:-2, :]
+    n = np.cross(dx, dy)
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    valid = (z > 0) & (norm[..., 0] > 1e-12)
+    valid[:, 1:-1] &= (z[:, 2:] > 0) & (z[:, :-2] > 0)
+    valid[1:-1, :] &= (z[2:, :] > 0) & (z[:-2, :] > 0)
+    valid[:, 1:-1] &= np.abs(dx[:, 1:-1, 2]) < 2 * max_depth_jump_m
+    valid[1:-1, :] &= np.abs(dy[1:-1, :, 2]) < 2 * max_depth_jump_m
+    valid[[0, -1], :] = False
+    valid[:, [0, -1]] = False
+    n = np.where(valid[..., None], n / np.maximum(norm, 1e-12), 0.0)
+    # orient towards the camera (the viewing ray is +vertex)
+    flip = np.einsum("hwc,hwc->hw", n, vertex) > 0
+    n[flip] *= -1
+    return n.astype(np.float32)
+
+
+def downsample_depth(depth_m: np.ndarray, max_diff_m: float = 0.03) -> np.ndarray:
+    """Half-resolution depth: mean of each 2x2 block's valid values close to its top-left value.
+
+    Invalid (0) pixels never contribute, so holes do not pull depth towards the camera.
+    """
+    h, w = depth_m.shape
+    d = depth_m[: h - h % 2, : w - w % 2].astype(np.float32)
+    blocks = np.stack([d[0::2, 0::2], d[0::2, 1::2], d[1::2, 0::2], d[1::2, 1::2]])
+    ref = blocks[0]
+    use = (blocks > 0) & (np.abs(blocks - ref) < max_diff_m)
+    count = use.sum(axis=0)
+    total = np.where(use, blocks, 0.0).sum(axis=0)
+    out = np.where((ref > 0) & (count > 0), total / np.maximum(count, 1), 0.0)
+    return out.astype(np.float32)
+
+
+def depth_pyramid(depth_m: np.ndarray, levels: int = 3) -> list[np.ndarray]:
+    """Depth pyramid, finest first: level i has 1/2^i resolution."""
+    pyr = [depth_m.astype(np.float32)]
+    for _ in range(levels - 1):
+        pyr.append(downsample_depth(pyr[-1]))
+    return pyr
+
+
+def scale_intrinsics(K: np.ndarray, factor: float) -> np.ndarray:
+    """Intrinsics of an image resized by 1/factor (pixel-centre convention)."""
+    if factor == 1:
+        return K.copy()
+    Ks = K.astype(float).copy()
+    Ks[0, 0] /= factor
+    Ks[1, 1] /= factor
+    Ks[0, 2] = (K[0, 2] + 0.5) / factor - 0.5
+    Ks[1, 2] = (K[1, 2] + 0.5) / factor - 0.5
+    return Ks
+
+
+def resize_color(color: np.ndarray, factor: int) -> np.ndarray:
+    """Colour image downsampled by an integer factor (area interpolation)."""
+    if factor == 1:
+        return color
+    h, w = color.shape[:2]
+    return cv2.resize(color, (w // factor, h // factor), interpolation=cv2.INTER_AREA)

@@ -1,0 +1,98 @@
+"""SE(3) helpers. Convention: 4x4 homogeneous matrices, ``T_a_b`` maps points in frame b to frame a.
+
+Camera poses are ``T_world_cam`` (camera-to-world). Quaternions are ``(qx, qy, qz, qw)`` as in TUM.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Build a 4x4 transform from a 3x3 rotation and a translation vector."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
+    return T
+
+
+def inv_T(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform (or a stack of them, shape (..., 4, 4))."""
+    T = np.asarray(T, dtype=float)
+    R = T[..., :3, :3]
+    t = T[..., :3, 3]
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(R, -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, t)
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 transform to points of shape (..., 3)."""
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def pose_to_tum(T: np.ndarray) -> np.ndarray:
+    """4x4 pose -> ``[tx, ty, tz, qx, qy, qz, qw]`` (scalar-last quaternion, qw >= 0)."""
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    if q[3] < 0:
+        q = -q
+    return np.concatenate([T[:3, 3], q])
+
+
+def tum_to_pose(v: np.ndarray) -> np.ndarray:
+    """``[tx, ty, tz, qx, qy, qz, qw]`` -> 4x4 pose. The quaternion is normalised."""
+    v = np.asarray(v, dtype=float)
+    q = v[3:7] / np.linalg.norm(v[3:7])
+    return make_T(Rotation.from_quat(q).as_matrix(), v[:3])
+
+
+def exp_se3(xi: np.ndarray) -> np.ndarray:
+    """Exponential map: twist ``[wx, wy, wz, vx, vy, vz]`` (rotation first) -> 4x4 transform."""
+    xi = np.asarray(xi, dtype=float)
+    w, v = xi[:3], xi[3:]
+    theta = np.linalg.norm(w)
+    R = Rotation.from_rotvec(w).as_matrix()
+    W = skew(w)
+    if theta < 1e-10:
+        V = np.eye(3) + 0.5 * W
+    else:
+        V = (
+            np.eye(3)
+            + (1 - np.cos(theta)) / theta**2 * W
+            + (theta - np.sin(theta)) / theta**3 * (W @ W)
+        )
+    return make_T(R, V @ v)
+
+
+def log_se3(T: np.ndarray) -> np.ndarray:
+    """Logarithm map, inverse of :func:`exp_se3`: 4x4 transform -> twist (rotation first)."""
+    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    theta = np.linalg.norm(w)
+    W = skew(w)
+    if theta < 1e-10:
+        V_inv = np.eye(3) - 0.5 * W
+    else:
+        a = (1 - theta / 2 * np.sin(theta) / (1 - np.cos(theta))) / theta**2
+        V_inv = np.eye(3) - 0.5 * W + a * (W @ W)
+    return np.concatenate([w, V_inv @ T[:3, 3]])
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """3x3 cross-product matrix of a 3-vector."""
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def rotation_angle_deg(T: np.ndarray) -> float:
+    """Angle of the rotation part of a transform, in degrees."""
+    c = (np.trace(T[:3, :3]) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def translation_norm(T: np.ndarray) -> float:
+    """Length of the translation part of a transform."""
+    return float(np.linalg.norm(T[:3, 3]))

@@ -1,0 +1,184 @@
+"""TSDF fusion, ray-casting and marching cubes on Open3D's VoxelBlockGrid (CPU tensor kernels).
+
+The grid stores a truncated signed distance, a weight and (optionally) a colour per voxel and is
+updated by the weighted running average of KinectFusion: ``D <- (W D + d) / (W + 1)``,
+``W <- W + 1``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+
+from slam.config import MappingConfig
+from slam.geometry import inv_T
+
+log = logging.getLogger(__name__)
+_CPU = o3c.Device("CPU:0")
+# Open3D reports range-map reallocations at warning level on every resize; keep them out of logs
+o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+
+
+@dataclass
+class Rendering:
+    """A ray-cast view of the model: depth (m, 0 = no surface), normals in the camera frame, and
+    colour (float RGB in [0, 1]) when the model has colour."""
+
+    depth_m: np.ndarray
+    normals_cam: np.ndarray | None
+    color: np.ndarray | None
+
+
+def _tensor(a: np.ndarray, dtype=None) -> o3c.Tensor:
+    return o3c.Tensor(np.ascontiguousarray(a if dtype is None else a.astype(dtype)))
+
+
+class TSDFVolume:
+    """A TSDF volume in world coordinates (metres)."""
+
+    def __init__(self, cfg: MappingConfig, with_color: bool = True) -> None:
+        self.cfg = cfg
+        self.with_color = with_color and cfg.integrate_color
+        names = ["tsdf", "weight"] + (["color"] if self.with_color else [])
+        dtypes = [o3c.float32] * len(names)
+        channels = [[1], [1]] + ([[3]] if self.with_color else [])
+        self.vbg = o3d.t.geometry.VoxelBlockGrid(
+            names, dtypes, channels, cfg.voxel_size_m, cfg.block_resolution, cfg.block_count, _CPU
+        )
+        self.n_integrated = 0
+        self._last_blocks: o3c.Tensor | None = None
+
+    @property
+    def voxel_size(self) -> float:
+        return self.cfg.voxel_size_m
+
+    def integrate(
+        self,
+        depth_m: np.ndarray,
+        color: np.ndarray | None,
+        K: np.ndarray,
+        T_world_cam: np.ndarray,
+    ) -> None:
+        """Fuse one frame (depth in metres, colour HxWx3 uint8 RGB or None) seen from a pose."""
+        depth = o3d.t.geometry.Image(_tensor(depth_m, np.float32))
+        K_t = _tensor(K, np.float64)
+        extrinsic = _tensor(inv_T(T_world_cam), np.float64)
+        trunc = self.cfg.trunc_voxels
+        blocks = self.vbg.compute_unique_block_coordinates(
+            depth, K_t, extrinsic, 1.0, self.cfg.depth_max_m, trunc
+        )
+        if self.with_color and color is not None:
+            col = o3d.t.geometry.Image(_tensor(color, np.float32) / 255.0)
+            self.vbg.integrate(
+                blocks, depth, col, K_t, K_t, extrinsic, 1.0, self.cfg.depth_max_m, trunc
+            )
+        else:
+            self.vbg.integrate(blocks, depth, K_t, extrinsic, 1.0, self.cfg.depth_max_m, trunc)
+        self._last_blocks = blocks
+        self.n_integrated += 1
+
+    def _weight_threshold(self, threshold: float) -> float:
+        # early on every voxel has few observations; do not demand more than there can be
+        return float(min(threshold, max(self.n_integrated, 1)))
+
+    def raycast(
+        self,
+        K: np.ndarray,
+        width: int,
+        height: int,
+        T_world_cam: np.ndarray,
+        with_normals: bool = True,
+        with_color: bool = False,
+        depth_min_m: float = 0.1,
+        depth_max_m: float | None = None,
+        frustum_depth_m: np.ndarray | None = None,
+    ) -> Rendering:
+        """Render depth (and normals, colour) of the model as seen from ``T_world_cam``.
+
+        Rays are bounded by a range map built from a set of blocks: those a depth image
+        ``frustum_depth_m`` (same intrinsics) would touch from this pose when given (tracking
+        passes the new frame's depth), else the blocks last integrated.
+        """
+        depth_max = self.cfg.depth_max_m if depth_max_m is None else depth_max_m
+        blocks = self._last_blocks
+        if frustum_depth_m is not None and self.n_integrated > 0:
+            blocks = self.vbg.compute_unique_block_coordinates(
+                o3d.t.geometry.Image(_tensor(frustum_depth_m, np.float32)),
+                _tensor(K, np.float64),
+                _tensor(inv_T(T_world_cam), np.float64),
+                1.0,
+                depth_max,
+                self.cfg.trunc_voxels,
+            )
+        if blocks is None or blocks.shape[0] == 0:
+            return Rendering(np.zeros((height, width), np.float32), None, None)
+        attrs = ["depth"] + (["normal"] if with_normals else [])
+        if with_color and self.with_color:
+            attrs.append("color")
+        out = self.vbg.ray_cast(
+            blocks,
+            _tensor(K, np.float64),
+            _tensor(inv_T(T_world_cam), np.float64),
+            width,
+            height,
+            attrs,
+            1.0,
+            depth_min_m,
+            depth_max,
+            self._weight_threshold(self.cfg.raycast_weight_threshold),
+            self.cfg.trunc_voxels,
+            8,
+        )
+        depth = out["depth"].numpy()[..., 0].astype(np.float32)
+        normals = None
+        if with_normals:
+            n_world = out["normal"].numpy()
+            normals = (n_world @ T_world_cam[:3, :3]).astype(np.float32)  # R^T n
+            normals[depth <= 0] = 0.0
+        color = out["color"].numpy() if "color" in attrs else None
+        return Rendering(depth, normals, color)
+
+    def render(self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray) -> Rendering:
+        """Render depth, normals and colour from any pose, marching through all allocated blocks."""
+        saved = self._last_blocks
+        try:
+            self._last_blocks = self.active_block_coords()
+            return self.raycast(K, width, height, T_world_cam, True, True)
+        finally:
+            self._last_blocks = saved
+
+    def active_block_coords(self) -> o3c.Tensor:
+        hashmap = self.vbg.hashmap()
+        return hashmap.key_tensor()[hashmap.active_buf_indices().to(o3c.int64)]
+
+    def extract_mesh(self, weight_threshold: float | None = None) -> o3d.geometry.TriangleMesh:
+        """Marching cubes over the whole volume: a legacy Open3D mesh (vertex colours if any)."""
+        thr = self.cfg.mesh_weight_threshold if weight_threshold is None else weight_threshold
+        mesh = self.vbg.extract_triangle_mesh(self._weight_threshold(thr)).to_legacy()
+        mesh.compute_vertex_normals()
+        return mesh
+
+    def save(self, path: str | Path) -> None:
+        """Save the voxel grid (``.npz``) for checkpointing."""
+        self.vbg.save(str(path))
+
+    @property
+    def n_blocks(self) -> int:
+        return int(self.vbg.hashmap().size())
+
+
+def write_mesh(path: str | Path, mesh: o3d.geometry.TriangleMesh) -> None:
+    """Write a PLY mesh atomically (temporary file in the same folder, then rename)."""
+    import os
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    if not o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False, compressed=False):
+        tmp.unlink(missing_ok=True)
+        raise OSError(f"{path}: Open3D could not write the mesh")
+    os.replace(tmp, path)
