@@ -1,5 +1,16 @@
-"""Offline RGB-D SLAM: KinectFusion-style tracking and TSDF mapping with a loop-closure backend."""
+"""Offline RGB-D SLAM: KinectFusion-style tracking and TSDF mapping with a loop-closure backend.
 
+Quick use::
+
+    import slam
+    seq = slam.open_sequence("path/to/tum_sequence")
+    result = slam.run(seq, slam.SlamConfig())
+    print(result.metrics["ate_rmse_m"])
+"""
+
+from slam.api import run_sequence
+from slam.config import SlamConfig, config_from_dict, load_config
+from slam.data import Calibration, Frame, Sequence, open_sequence
 from slam.errors import (
     CalibrationError,
     ConfigError,
@@ -9,15 +20,31 @@ from slam.errors import (
     TrackingError,
     TrajectoryError,
 )
+from slam.pipeline import RunResult, run, save_run
+from slam.trajectory import Trajectory, read_tum, write_tum
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "Calibration",
     "CalibrationError",
     "ConfigError",
     "DatasetError",
+    "Frame",
     "FrameReadError",
+    "RunResult",
+    "Sequence",
+    "SlamConfig",
     "SlamError",
     "TrackingError",
+    "Trajectory",
     "TrajectoryError",
+    "config_from_dict",
+    "load_config",
+    "open_sequence",
+    "read_tum",
+    "run",
+    "run_sequence",
+    "save_run",
+    "write_tum",
 ]

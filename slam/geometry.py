@@ -57,14 +57,11 @@ def exp_se3(xi: np.ndarray) -> np.ndarray:
     theta = np.linalg.norm(w)
     R = Rotation.from_rotvec(w).as_matrix()
     W = skew(w)
-    if theta < 1e-10:
-        V = np.eye(3) + 0.5 * W
+    if theta < 1e-4:  # series expansions avoid cancellation near zero
+        a, b = 0.5 - theta**2 / 24.0, 1.0 / 6.0 - theta**2 / 120.0
     else:
-        V = (
-            np.eye(3)
-            + (1 - np.cos(theta)) / theta**2 * W
-            + (theta - np.sin(theta)) / theta**3 * (W @ W)
-        )
+        a, b = (1 - np.cos(theta)) / theta**2, (theta - np.sin(theta)) / theta**3
+    V = np.eye(3) + a * W + b * (W @ W)
     return make_T(R, V @ v)
 
 
@@ -73,11 +70,11 @@ def log_se3(T: np.ndarray) -> np.ndarray:
     w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
     theta = np.linalg.norm(w)
     W = skew(w)
-    if theta < 1e-10:
-        V_inv = np.eye(3) - 0.5 * W
+    if theta < 1e-4:
+        a = 1.0 / 12.0 + theta**2 / 720.0
     else:
         a = (1 - theta / 2 * np.sin(theta) / (1 - np.cos(theta))) / theta**2
-        V_inv = np.eye(3) - 0.5 * W + a * (W @ W)
+    V_inv = np.eye(3) - 0.5 * W + a * (W @ W)
     return np.concatenate([w, V_inv @ T[:3, 3]])
 
 

@@ -162,7 +162,9 @@ def _box(lo, hi) -> tuple[np.ndarray, np.ndarray]:
 
 def _cylinder(center_xy, z0, radius, height, resolution=32) -> tuple[np.ndarray, np.ndarray]:
     split = max(1, int(np.ceil(height / 0.1)))  # avoid very skinny side triangles
-    m = o3d.geometry.TriangleMesh.create_cylinder(radius, height, resolution=resolution, split=split)
+    m = o3d.geometry.TriangleMesh.create_cylinder(
+        radius, height, resolution=resolution, split=split
+    )
     v = np.asarray(m.vertices) + np.array([center_xy[0], center_xy[1], z0 + height / 2.0])
     return v, np.asarray(m.triangles).copy()
 
@@ -198,8 +200,9 @@ def _layout(seed: int, alias: bool) -> _Layout:
     rng = np.random.default_rng([int(seed), 0x5CE7E])
     L = _Layout()
 
-    def add(name: str, vt: tuple[np.ndarray, np.ndarray], tex: _TexParams | None = None,
-            group: int = -1) -> None:
+    def add(
+        name: str, vt: tuple[np.ndarray, np.ndarray], tex: _TexParams | None = None, group: int = -1
+    ) -> None:
         L.vertices.append(np.asarray(vt[0], float))
         L.triangles.append(np.asarray(vt[1], np.int64))
         L.names.append(name)
@@ -351,7 +354,9 @@ def _texture(seed: int) -> np.ndarray:
     lum_u8 = np.ascontiguousarray(np.clip(60 + 140 * lum, 0, 255).astype(np.uint8))
     mix = np.zeros((N, N), np.float32)
     for cell, amp in ((128, 0.6), (32, 0.4)):
-        mix += amp * _upsample_periodic(rng.random((N // cell, N // cell), dtype=np.float32), cell, N)
+        mix += amp * _upsample_periodic(
+            rng.random((N // cell, N // cell), dtype=np.float32), cell, N
+        )
     mix_u8 = np.ascontiguousarray(np.clip(255 * mix, 0, 255).astype(np.uint8))
 
     def level() -> tuple[int, int]:
@@ -450,15 +455,20 @@ def _as_synth_scene(scene, cfg: SynthConfig) -> SynthScene:
         key = id(scene)
         cached = _scene_cache.get(key)
         # the cache entry keeps the mesh alive, so its id cannot be reused while cached
-        if cached is None or cached.mesh is not scene or cached.seed != int(cfg.seed) or (
-            cached.alias != bool(cfg.alias)
+        if (
+            cached is None
+            or cached.mesh is not scene
+            or cached.seed != int(cfg.seed)
+            or (cached.alias != bool(cfg.alias))
         ):
             cached = SynthScene(scene, cfg)
             _scene_cache[key] = cached
             while len(_scene_cache) > 2:
                 _scene_cache.popitem(last=False)
         return cached
-    raise TypeError(f"render_frame: expected SynthScene or TriangleMesh, got {type(scene).__name__}")
+    raise TypeError(
+        f"render_frame: expected SynthScene or TriangleMesh, got {type(scene).__name__}"
+    )
 
 
 @dataclass(frozen=True)
@@ -505,6 +515,7 @@ def render_frame(
 
     Returns ``(color, depth_m)``: HxWx3 uint8 RGB and HxW float32 metres, 0 = no depth.
     """
+    cfg.validate()
     sc = _as_synth_scene(scene, cfg)
     W, H = int(cfg.width), int(cfg.height)
     N = W * H
@@ -570,7 +581,8 @@ def render_frame(
         lx, ly, lz = (np.float32(w * c) for c in ldir)
         shade += np.abs(nx * lx + ny * ly + nz * lz)
     lum = tex[:, 0] * shade
-    albedo = np.take(sc.albedo_lut, obj * 256 + tex[:, 1], axis=0)
+    lut_index: np.ndarray = obj * 256 + tex[:, 1].astype(np.int32)
+    albedo = np.take(sc.albedo_lut, lut_index, axis=0)
     color = np.multiply(albedo, lum[:, None], out=albedo).reshape(H, W, 3)
 
     if cfg.noise:
@@ -730,7 +742,14 @@ def generate_sequence(out_dir: str | Path, cfg: SynthConfig | None = None) -> Pa
     rng = np.random.default_rng(int(cfg.seed))
     log.info(
         "generating synthetic sequence %s: %d frames %dx%d seed=%d loop=%s noise=%s alias=%s",
-        out, cfg.frames, cfg.width, cfg.height, cfg.seed, cfg.loop, cfg.noise, cfg.alias,
+        out,
+        cfg.frames,
+        cfg.width,
+        cfg.height,
+        cfg.seed,
+        cfg.loop,
+        cfg.noise,
+        cfg.alias,
     )
     names = [f"{i:06d}.png" for i in range(len(traj))]
     t_render = 0.0
@@ -764,7 +783,8 @@ def generate_sequence(out_dir: str | Path, cfg: SynthConfig | None = None) -> Pa
     write_tum(out / "groundtruth.txt", traj)
     atomic_write_text(out / "calibration.yaml", _calibration_yaml(cfg))
     tmp_ply = out / ".scene.tmp.ply"
-    if not o3d.io.write_triangle_mesh(str(tmp_ply), scene.mesh, write_ascii=False):
+    # str path: accepted by every supported Open3D (0.18 takes str only, newer stubs say PathLike)
+    if not o3d.io.write_triangle_mesh(str(tmp_ply), scene.mesh, write_ascii=False):  # type: ignore[arg-type]
         raise DatasetError(f"{tmp_ply}: writing the scene mesh failed")
     os.replace(tmp_ply, out / "scene.ply")
     # frames left over from an earlier, longer generation into the same folder
@@ -778,7 +798,10 @@ def generate_sequence(out_dir: str | Path, cfg: SynthConfig | None = None) -> Pa
     dt = time.perf_counter() - t0
     log.info(
         "synthetic sequence %s done: %d frames in %.1f s (render %.1f ms/frame)",
-        out, len(traj), dt, 1000 * t_render / max(len(traj), 1),
+        out,
+        len(traj),
+        dt,
+        1000 * t_render / max(len(traj), 1),
     )
     return out
 

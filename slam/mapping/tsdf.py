@@ -137,8 +137,8 @@ class TSDFVolume:
         depth = out["depth"].numpy()[..., 0].astype(np.float32)
         normals = None
         if with_normals:
-            n_world = out["normal"].numpy()
-            normals = (n_world @ T_world_cam[:3, :3]).astype(np.float32)  # R^T n
+            # Open3D returns camera-frame normals pointing into the surface; flip to face the camera
+            normals = -out["normal"].numpy().astype(np.float32)
             normals[depth <= 0] = 0.0
         color = out["color"].numpy() if "color" in attrs else None
         return Rendering(depth, normals, color)

@@ -273,7 +273,12 @@ def test_generate_sequence_writes_a_tum_folder(tmp_path: Path):
     calib = yaml.safe_load((out / "calibration.yaml").read_text())
     assert list(calib) == ["width", "height", "fx", "fy", "cx", "cy", "depth_scale"]
     assert calib == {
-        "width": 160, "height": 120, "fx": 131.25, "fy": 131.25, "cx": 79.5, "cy": 59.5,
+        "width": 160,
+        "height": 120,
+        "fx": 131.25,
+        "fy": 131.25,
+        "cx": 79.5,
+        "cy": 59.5,
         "depth_scale": 5000.0,
     }
 

@@ -1,0 +1,100 @@
+import cv2
+import numpy as np
+import pytest
+
+from slam.data import open_sequence
+from slam.data.tum import associate, interpolate_poses
+from slam.errors import CalibrationError, DatasetError, FrameReadError
+from slam.trajectory import Trajectory
+
+
+def _write_seq(root, rgb_stamps, depth_stamps, calib=True, gt=None):
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    rgb_lines, depth_lines = ["# rgb"], ["# depth"]
+    for i, t in enumerate(rgb_stamps):
+        cv2.imwrite(str(root / f"rgb/{i}.png"), np.full((48, 64, 3), i, np.uint8))
+        rgb_lines.append(f"{t:.6f} rgb/{i}.png")
+    for i, t in enumerate(depth_stamps):
+        cv2.imwrite(str(root / f"depth/{i}.png"), np.full((48, 64), 5000 + i, np.uint16))
+        depth_lines.append(f"{t:.6f} depth/{i}.png")
+    (root / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    if calib:
+        (root / "calibration.yaml").write_text(
+            "width: 64\nheight: 48\nfx: 50.0\nfy: 50.0\ncx: 31.5\ncy: 23.5\ndepth_scale: 5000.0\n"
+        )
+    if gt is not None:
+        (root / "groundtruth.txt").write_text(gt)
+    return root
+
+
+def test_association_with_offset_timestamps(tmp_path):
+    rgb = [0.000, 0.033, 0.066, 0.100, 0.133]
+    depth = [0.012, 0.045, 0.078, 0.300, 0.145]  # offset by 12 ms; 0.300 has no partner
+    seq = open_sequence(_write_seq(tmp_path / "s", rgb, depth))
+    assert len(seq) == 4
+    np.testing.assert_allclose(seq.timestamps(), [0.000, 0.033, 0.066, 0.133])
+    f = seq[3]
+    assert f.depth_m[0, 0] == pytest.approx((5000 + 4) / 5000.0)  # depth file 4 (0.145)
+    assert f.color[0, 0, 0] == 4
+
+
+def test_associate_is_one_to_one():
+    a = np.array([0.0, 0.01, 0.02])
+    b = np.array([0.011])
+    assert associate(a, b, 0.02) == [(1, 0)]
+    assert associate(np.array([0.0]), np.array([0.5]), 0.02) == []
+
+
+def test_ground_truth_interpolated_at_frames(tmp_path):
+    gt = "# gt\n0.0 0 0 0 0 0 0 1\n0.05 1 0 0 0 0 0 1\n0.10 2 0 0 0 0 0 1\n"
+    seq = open_sequence(_write_seq(tmp_path / "s", [0.02, 0.07], [0.02, 0.07], gt=gt))
+    g = seq.ground_truth
+    np.testing.assert_allclose(g.positions[:, 0], [0.4, 1.4], atol=1e-9)
+
+
+def test_interpolate_drops_outside_and_gaps():
+    traj = Trajectory(np.array([0.0, 1.0, 1.01]), np.tile(np.eye(4), (3, 1, 1)))
+    out = interpolate_poses(traj, np.array([-1.0, 0.5, 1.005, 2.0]), max_gap=0.1)
+    np.testing.assert_allclose(out.timestamps, [1.005])
+
+
+def test_missing_calibration_is_a_clear_error(tmp_path):
+    root = _write_seq(tmp_path / "unknown_cam", [0.0], [0.0], calib=False)
+    with pytest.raises(CalibrationError, match="calibration.yaml"):
+        open_sequence(root)
+
+
+def test_tum_defaults_by_folder_name(tmp_path):
+    seq = open_sequence(_write_seq(tmp_path / "rgbd_dataset_freiburg1_xyz", [0.0], [0.0], calib=False))
+    assert seq.calibration.fx == 517.3 and seq.calibration.depth_scale == 5000.0
+
+
+def test_calibration_override(tmp_path):
+    seq = open_sequence(_write_seq(tmp_path / "s", [0.0], [0.0]), calibration_overrides={"fx": 99.0})
+    assert seq.calibration.fx == 99.0 and seq.calibration.fy == 50.0
+
+
+def test_unknown_layout(tmp_path):
+    (tmp_path / "x").mkdir()
+    with pytest.raises(DatasetError, match="unknown sequence layout"):
+        open_sequence(tmp_path / "x")
+    with pytest.raises(DatasetError, match="not found"):
+        open_sequence(tmp_path / "missing")
+
+
+def test_corrupt_frame_raises_frame_error(tmp_path):
+    root = _write_seq(tmp_path / "s", [0.0, 0.033], [0.0, 0.033])
+    (root / "depth/1.png").write_bytes(b"not a png")
+    seq = open_sequence(root)
+    seq[0]
+    with pytest.raises(FrameReadError, match="frame 1"):
+        seq[1]
+
+
+def test_depth_only_sequence(tmp_path):
+    root = _write_seq(tmp_path / "s", [0.0], [0.0])
+    (root / "rgb.txt").unlink()
+    seq = open_sequence(root)
+    assert not seq.has_color and seq[0].color is None

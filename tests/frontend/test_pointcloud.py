@@ -1,0 +1,66 @@
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slam.frontend.pointcloud import (
+    backproject,
+    depth_pyramid,
+    downsample_depth,
+    normal_map,
+    project,
+    scale_intrinsics,
+)
+
+K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(0.3, 8.0), st.integers(0, 639), st.integers(0, 479))
+def test_backproject_then_project_returns_the_pixel(z, u, v):
+    depth = np.zeros((480, 640), np.float32)
+    depth[v, u] = z
+    vert = backproject(depth, K)
+    p = vert[v, u][None].astype(float)
+    np.testing.assert_allclose(project(p, K)[0], [u, v], atol=1e-3)
+    assert abs(vert[v, u, 2] - np.float32(z)) < 1e-6
+
+
+def test_normals_of_a_tilted_plane():
+    # plane z = 2 + 0.5 x  -> normal ~ (0.5, 0, -1) normalised, facing the camera
+    u, v = np.meshgrid(np.arange(640), np.arange(480))
+    xn = (u - K[0, 2]) / K[0, 0]
+    z = 2.0 / (1 - 0.5 * xn)
+    n = normal_map(backproject(z.astype(np.float32), K))
+    expected = np.array([0.5, 0.0, -1.0]) / np.linalg.norm([0.5, 0.0, -1.0])
+    inner = n[5:-5, 5:-5].reshape(-1, 3)
+    assert np.abs(inner - expected).max() < 1e-3
+
+
+def test_normals_zero_at_holes_and_edges():
+    depth = np.full((48, 64), 2.0, np.float32)
+    depth[10, 10] = 0.0
+    depth[:, 40:] = 3.0  # a 1 m step
+    n = normal_map(backproject(depth, K))
+    for v, u in [(10, 10), (9, 10), (11, 10), (10, 9), (10, 11)]:  # the hole and its 4-neighbours
+        assert np.all(n[v, u] == 0)
+    assert np.all(n[5:-5, 39:41] == 0)
+    assert np.all(np.linalg.norm(n[20, 15:35], axis=-1) > 0.99)
+
+
+def test_downsample_ignores_holes():
+    d = np.array([[1.0, 0.0], [1.02, 0.0]], np.float32)
+    assert abs(downsample_depth(d)[0, 0] - 1.01) < 1e-6
+    d = np.array([[1.0, 2.0], [1.0, 2.0]], np.float32)  # across a depth edge: the far side is ignored
+    assert downsample_depth(d)[0, 0] == 1.0
+    d = np.array([[0.0, 2.0], [2.0, 2.0]], np.float32)
+    assert downsample_depth(d)[0, 0] == 0.0  # top-left invalid -> invalid
+
+
+def test_pyramid_and_scaled_intrinsics_agree():
+    depth = np.full((480, 640), 2.5, np.float32)
+    pyr = depth_pyramid(depth, 3)
+    assert [p.shape for p in pyr] == [(480, 640), (240, 320), (120, 160)]
+    K2 = scale_intrinsics(K, 2)
+    # the centre of a 2x2 block projects to the same ray at both levels
+    ray_full = (np.array([1.5, 1.5]) - K[:2, 2]) / K[0, 0]
+    np.testing.assert_allclose(ray_full, (np.array([0.5, 0.5]) - K2[:2, 2]) / K2[0, 0], atol=1e-9)
