@@ -53,9 +53,12 @@ class TrackingConfig:
     min_fitness: float = 0.1  # ICP check: fraction of pixels with an ICP correspondence
     min_overlap: float = 0.3  # ICP check: fraction of pixels within inlier_threshold of the model
     inlier_threshold_m: float = 0.03
-    max_step_translation_m: float = 0.3  # larger single-step corrections are rejected
+    max_step_translation_m: float = 0.3  # frame-to-frame ICP moving the guess more is rejected
+    max_model_correction_m: float = 0.05  # frame-to-model ICP moving the guess more is rejected
+    max_model_correction_deg: float = 3.0
     large_motion_translation_m: float = 0.06  # predicted motion above this -> RANSAC seed
     large_motion_rotation_deg: float = 6.0
+    relocalisation_keyframes: int = 5  # RANSAC tries this many recent keyframes when needed
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
     ransac: RansacConfig = field(default_factory=RansacConfig)
@@ -68,7 +71,7 @@ class MappingConfig:
     voxel_size_m: float = 0.01
     trunc_voxels: float = 4.0  # truncation distance = trunc_voxels * voxel_size
     block_resolution: int = 16
-    block_count: int = 60000  # initial hash-map capacity (grows when needed)
+    block_count: int = 8000  # initial hash-map capacity in blocks (grows when needed)
     depth_max_m: float = 3.5
     integrate_color: bool = True
     raycast_weight_threshold: float = 3.0

@@ -86,10 +86,23 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 def rotation_angle_deg(T: np.ndarray) -> float:
     """Angle of the rotation part of a transform, in degrees."""
-    c = (np.trace(T[:3, :3]) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    R = T[:3, :3]
+    # atan2 form: accurate for small angles even when R is not exactly orthonormal
+    s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    c = (np.trace(R) - 1.0) / 2.0
+    return float(np.degrees(np.arctan2(s, c)))
 
 
 def translation_norm(T: np.ndarray) -> float:
     """Length of the translation part of a transform."""
     return float(np.linalg.norm(T[:3, 3]))
+
+
+def orthonormalize(T: np.ndarray) -> np.ndarray:
+    """Nearest rigid transform (rotation re-projected onto SO(3) by SVD)."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    return make_T(R, T[:3, 3])

@@ -70,3 +70,14 @@ def room() -> o3d.geometry.TriangleMesh:
 @pytest.fixture(scope="session")
 def K_vga() -> np.ndarray:
     return np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
+
+
+@pytest.fixture(scope="session")
+def synth_loop_320(tmp_path_factory) -> Path:
+    """A 320x240 synthetic loop sequence (300 frames, exact ground truth), generated once."""
+    from slam.data.synthetic import SynthConfig, generate_sequence
+
+    out = tmp_path_factory.mktemp("synth") / "loop320"
+    cfg = SynthConfig(frames=300, loop=True, seed=1, width=320, height=240, fx=262.5, fy=262.5,
+                      cx=159.5, cy=119.5)
+    return generate_sequence(out, cfg)

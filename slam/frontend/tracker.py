@@ -15,7 +15,7 @@ from slam.frontend.features import FeatureSet, OrbExtractor, match_descriptors
 from slam.frontend.icp import IcpResult, projective_icp, projective_overlap
 from slam.frontend.pointcloud import downsample_depth, scale_intrinsics
 from slam.frontend.ransac import RansacResult, ransac_rigid
-from slam.geometry import inv_T, rotation_angle_deg, translation_norm
+from slam.geometry import inv_T, orthonormalize, rotation_angle_deg, translation_norm
 from slam.mapping.tsdf import TSDFVolume
 
 log = logging.getLogger(__name__)
@@ -48,6 +48,8 @@ class TrackingStatus:
     ransac_inliers: int = 0
     ransac_matches: int = 0
     overlap: float = 0.0
+    f2f_fitness: float = 0.0
+    model_rejected: bool = False
     keyframe: bool = False
     ms: float = 0.0
 
@@ -61,6 +63,7 @@ class TrackerState:
 
     T_world_prev: np.ndarray | None = None
     prev_features: Keyframe | None = None  # the previous frame's features, when it computed them
+    prev_depth: np.ndarray | None = None  # the previous frame's depth at tracking resolution
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
 
@@ -113,6 +116,10 @@ class Tracker:
             feats = self._features(frame)
             self._add_keyframe(frame, T, feats, status)
             st.T_world_prev = T
+            depth0 = frame.depth_m
+            for _ in range(int(np.log2(cfg.downsample))):
+                depth0 = downsample_depth(depth0)
+            st.prev_depth = depth0
             status.ms = (time.perf_counter() - t0) * 1e3
             return T, status
 
@@ -133,92 +140,107 @@ class Tracker:
         ransac: RansacResult | None = None
         status = TrackingStatus(frame.index, "icp", False)
 
-        def run_icp(T_world_guess: np.ndarray) -> tuple[np.ndarray, IcpResult, float]:
-            """ICP of the frame against the model ray-cast at the guessed pose; returns the
-            refined pose, the ICP result and the verified overlap score."""
-            render = model.raycast(K_track, w, h, T_world_guess, False, False, frustum_depth_m=depth)
-            icp = projective_icp(
+        def icp_against(target_depth: np.ndarray, init: np.ndarray) -> IcpResult:
+            return projective_icp(
                 depth,
-                render.depth_m,
+                target_depth,
                 K_track,
-                np.eye(4),
+                init,
                 cfg.iterations,
                 cfg.depth_max_m,
                 cfg.max_correspondence_m,
                 cfg.huber_delta_m,
             )
-            score = 0.0
-            if translation_norm(icp.T_target_source) <= cfg.max_step_translation_m:
-                score = projective_overlap(
-                    depth, render.depth_m, K_track, icp.T_target_source, cfg.inlier_threshold_m
-                )
-            return T_world_guess @ icp.T_target_source, icp, score
+
+        def run_icp(
+            T_world_guess: np.ndarray, trusted: bool = True
+        ) -> tuple[np.ndarray, IcpResult, float]:
+            """Frame-to-model ICP: align the frame to the model ray-cast at the guessed pose.
+            Returns the refined pose, the ICP result and the verified overlap score; a
+            correction larger than ``max_model_correction`` falls back to a ``trusted`` guess
+            (one measured by frame-to-frame ICP or RANSAC, not merely predicted)."""
+            render = model.raycast(K_track, w, h, T_world_guess, False, False, frustum_depth_m=depth)
+            icp = icp_against(render.depth_m, np.eye(4))
+            step = icp.T_target_source
+            if trusted and (
+                translation_norm(step) > cfg.max_model_correction_m
+                or rotation_angle_deg(step) > cfg.max_model_correction_deg
+            ):
+                step = np.eye(4)  # distrust a large jump of the model ICP; keep the guess
+                status.model_rejected = True
+            score = projective_overlap(depth, render.depth_m, K_track, step, cfg.inlier_threshold_m)
+            return T_world_guess @ step, icp, score
 
         def ransac_guess() -> np.ndarray | None:
+            """RANSAC against the previous frame, else the most recent keyframes (newest first)."""
             nonlocal feats, ransac
-            kf = st.prev_features or self.last_keyframe
             if feats is None:
                 feats = self._features(frame)
-            if feats is None or kf is None:
+            if feats is None:
                 return None
-            ransac, n_matches = self.ransac_to_keyframe(feats, kf)
-            status.ransac_inliers = ransac.n_inliers
-            status.ransac_matches = n_matches
-            if not ransac.success:
-                return None
-            return kf.T_world_cam @ ransac.T  # T_world_cur
+            candidates = ([st.prev_features] if st.prev_features else []) + list(
+                reversed(st.keyframes[-cfg.relocalisation_keyframes :])
+            )
+            for kf in candidates:
+                res, n_matches = self.ransac_to_keyframe(feats, kf)
+                if ransac is None or res.n_inliers > ransac.n_inliers:
+                    ransac = res
+                    status.ransac_inliers = res.n_inliers
+                    status.ransac_matches = n_matches
+                if res.success:
+                    return kf.T_world_cam @ res.T  # T_world_cur
+            return None
 
-        # hypotheses, tried in order until one passes the check: constant velocity (or RANSAC
-        # first when the predicted motion is large), RANSAC, no motion; the best score wins.
+        # 1. the guess: RANSAC when the predicted motion is large, then frame-to-frame ICP
+        #    against the previous frame from that guess (or from constant velocity)
         color_ok = self.use_color and frame.color is not None
-        guesses: list[tuple[str, np.ndarray | None]] = [("icp", T_prev @ velocity)]
+        T_prev_cur = velocity
+        trusted = False
         if large and color_ok:
-            guesses.insert(0, ("ransac+icp", None))
-        elif color_ok:
-            guesses.append(("ransac+icp", None))
-        if large:
-            guesses.append(("icp", T_prev))
-        best: tuple[float, str, np.ndarray, IcpResult] | None = None
-        tried_ransac = False
-        for name, guess in guesses:
-            if guess is None:
-                if tried_ransac:
-                    continue
-                tried_ransac = True
-                guess = ransac_guess()
-                if guess is None:
-                    continue
-            T_cand, icp, score = run_icp(guess)
-            if best is None or score > best[0]:
-                best = (score, name, T_cand, icp)
-            if score >= cfg.min_overlap and icp.fitness >= cfg.min_fitness:
-                break
-        assert best is not None
-        score, name, T, icp = best
-        status.path = name
+            g = ransac_guess()
+            if g is not None:
+                T_prev_cur = inv_T(T_prev) @ g
+                status.path = "ransac+icp"
+                trusted = True
+        if st.prev_depth is not None:
+            f2f = icp_against(st.prev_depth, T_prev_cur)
+            status.f2f_fitness = round(float(f2f.fitness), 4)
+            if f2f.fitness >= cfg.min_fitness and (
+                translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source)
+                <= cfg.max_step_translation_m
+            ):
+                T_prev_cur = f2f.T_target_source
+                trusted = True
+        # 2. frame-to-model ICP from the guess; RANSAC rescue when the check fails
+        T, icp, score = run_icp(T_prev @ T_prev_cur, trusted)
+        ok = score >= cfg.min_overlap and icp.fitness >= cfg.min_fitness
+        if not ok and color_ok and ransac is None:
+            g = ransac_guess()
+            if g is not None:
+                T2, icp2, score2 = run_icp(g)
+                if score2 > score:
+                    T, icp, score = T2, icp2, score2
+                    status.path = "ransac+icp"
+                ok = score >= cfg.min_overlap and icp.fitness >= cfg.min_fitness
         status.icp_fitness = float(icp.fitness)
         status.icp_rmse_m = float(icp.inlier_rmse)
         status.overlap = round(score, 4)
-        ok = score >= cfg.min_overlap and icp.fitness >= cfg.min_fitness
-        if not ok and ransac is not None and ransac.success:
-            kf = st.prev_features or self.last_keyframe
-            T = kf.T_world_cam @ ransac.T if kf is not None else T
-            status.path = "ransac"
-            ok = True
-        elif not ok:
+        if not ok:
             T = T_prev @ velocity
             status.path = "lost"
             log.warning(
-                "frame %d: tracking lost (best overlap %.2f, ICP fitness %.2f, RANSAC inliers "
-                "%d); using the constant-velocity prediction",
+                "frame %d: tracking lost (overlap %.2f, ICP fitness %.2f, RANSAC inliers %d); "
+                "using the constant-velocity prediction",
                 frame.index,
                 score,
                 icp.fitness,
                 status.ransac_inliers,
             )
+        T = orthonormalize(T)
         status.ok = ok
         st.velocity = inv_T(T_prev) @ T if ok else np.eye(4)
         st.T_world_prev = T
+        st.prev_depth = depth if ok else None
         st.prev_features = (
             Keyframe(frame.index, frame.timestamp, T.copy(), feats)
             if ok and feats is not None and len(feats) > 0

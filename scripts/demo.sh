@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# The main job: set up (idempotent), then `slam run` on the built-in synthetic demo.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV="${VENV:-.venv}"
+VENV="$VENV" bash scripts/setup.sh
+"$VENV/bin/slam" run --out runs/demo "$@"
