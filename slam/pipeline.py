@@ -178,8 +178,10 @@ def save_run(result: RunResult, out_dir: str | Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     write_tum(out / "trajectory.txt", result.trajectory)
     write_tum(out / "odometry.txt", result.odometry)
-    if result.mesh is not None:
+    if result.mesh is not None and len(result.mesh.vertices) > 0:
         write_mesh(out / "mesh.ply", result.mesh)
+    elif result.mesh is not None:
+        log.warning("%s: the map is empty (no surface seen with enough weight); no mesh.ply", out)
     if result.config is not None:
         atomic_write_text(out / "config.yaml", result.config.to_yaml())
     if result.tracking:

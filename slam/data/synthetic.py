@@ -109,6 +109,7 @@ class SynthConfig:
     noise: bool = True
     alias: bool = False
     drift_bias: float = 0.0
+    render_frames: int | None = None  # render only the first N frames of the trajectory
 
     def calibration(self) -> Calibration:
         """The :class:`Calibration` of the rendered images (validates the intrinsics)."""
@@ -739,6 +740,9 @@ def generate_sequence(out_dir: str | Path, cfg: SynthConfig | None = None) -> Pa
     t0 = time.perf_counter()
     scene = build_scene(cfg)
     traj = make_trajectory(cfg)
+    if cfg.render_frames is not None:
+        n = max(1, min(int(cfg.render_frames), len(traj)))
+        traj = Trajectory(traj.timestamps[:n], traj.poses[:n])
     rng = np.random.default_rng(int(cfg.seed))
     log.info(
         "generating synthetic sequence %s: %d frames %dx%d seed=%d loop=%s noise=%s alias=%s",

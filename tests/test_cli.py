@@ -1,0 +1,79 @@
+import json
+
+import numpy as np
+from typer.testing import CliRunner
+
+from slam import eval as slam_eval
+from slam.cli import app
+from slam.geometry import exp_se3
+from slam.trajectory import Trajectory, read_tum, write_tum
+
+runner = CliRunner()
+
+
+def test_eval_json_matches_library(tmp_path):
+    rng = np.random.default_rng(0)
+    t = np.arange(100) / 30.0
+    gt = Trajectory(t, np.stack([exp_se3(np.r_[0.0, 0.01 * i, 0.0, 0.02 * i, 0.0, 0.001 * i**1.5]) for i in range(100)]))
+    est = Trajectory(t, np.stack([p @ exp_se3(rng.normal(0, 0.003, 6)) for p in gt.poses]))
+    write_tum(tmp_path / "gt.txt", gt)
+    write_tum(tmp_path / "est.txt", est)
+    res = runner.invoke(app, ["eval", str(tmp_path / "gt.txt"), str(tmp_path / "est.txt"), "--json",
+                              "--plot", str(tmp_path / "p.png")])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    lib = slam_eval.evaluate(read_tum(tmp_path / "gt.txt"), read_tum(tmp_path / "est.txt"))
+    for key in ("ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "matched_poses"):
+        assert out[key] == lib[key]
+    assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_eval_reports_unassociated_timestamps(tmp_path):
+    gt = Trajectory(np.arange(10.0), np.tile(np.eye(4), (10, 1, 1)))
+    est = Trajectory(np.arange(10.0) + 100.0, np.tile(np.eye(4), (10, 1, 1)))
+    write_tum(tmp_path / "gt.txt", gt)
+    write_tum(tmp_path / "est.txt", est)
+    res = runner.invoke(app, ["eval", str(tmp_path / "gt.txt"), str(tmp_path / "est.txt")])
+    assert res.exit_code == 2
+    assert "--t-max-diff" in res.output
+
+
+def test_run_on_missing_folder_is_a_clear_error(tmp_path):
+    res = runner.invoke(app, ["run", str(tmp_path / "nope"), "--out", str(tmp_path / "run")])
+    assert res.exit_code == 2
+    assert "not found" in res.output
+
+
+def test_synth_writes_a_sequence(tmp_path):
+    seq = tmp_path / "seq"
+    res = runner.invoke(app, ["synth", str(seq), "--frames", "3", "--seed", "3"])
+    assert res.exit_code == 0, res.output
+    assert len(list((seq / "depth").iterdir())) == 3
+    assert (seq / "calibration.yaml").is_file() and (seq / "groundtruth.txt").is_file()
+
+
+def test_run_writes_the_run_folder(tmp_path):
+    from slam.data.synthetic import SynthConfig, generate_sequence
+
+    seq = generate_sequence(
+        tmp_path / "seq",
+        SynthConfig(frames=300, render_frames=8, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5),
+    )
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["run", str(seq), "--out", str(out), "--max-frames", "6"])
+    assert res.exit_code == 0, res.output
+    assert "ATE RMSE" in res.stdout
+    assert len(read_tum(out / "trajectory.txt")) == 6
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == 6 and metrics["tracking_failures"] == 0
+    assert metrics["ate_rmse_m"] < 0.02
+    for name in ("odometry.txt", "mesh.ply", "config.yaml", "tracking.csv"):
+        assert (out / name).is_file()
+
+
+def test_bad_config_is_a_clear_error(tmp_path):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("tracking:\n  no_such_key: 1\n")
+    res = runner.invoke(app, ["run", str(tmp_path), "--config", str(cfg), "--out", str(tmp_path / "r")])
+    assert res.exit_code == 2
+    assert "no_such_key" in res.output
