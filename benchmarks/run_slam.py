@@ -22,6 +22,7 @@ def main() -> None:
     parser.add_argument("sequence", help="demo, or a folder name under ../shared/datasets")
     parser.add_argument("--config", default=None, help="YAML config overrides")
     parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--out", default=None, help="also save the run folder here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     path = sequence_path(args.sequence)
@@ -30,6 +31,8 @@ def main() -> None:
     cfg.dataset.path = str(path)
     seq = slam.open_sequence(path, cfg.dataset.layout, cfg.dataset.calibration)
     result = slam.run(seq, cfg)
+    if args.out:
+        slam.save_run(result, args.out)
     m = result.metrics
     data = {
         "system": "rgbd-slam (this project)",
@@ -47,8 +50,10 @@ def main() -> None:
         "machine": machine(),
     }
     out = write_result(f"slam-{args.sequence}", data)
-    print(f"{out}: ATE {data['ate_rmse_m']:.4f} m, {data['fps']:.2f} fps, "
-          f"{data['tracking_failures']} failures, peak {data['peak_rss_mb']:.0f} MB")
+    print(
+        f"{out}: ATE {data['ate_rmse_m']:.4f} m, {data['fps']:.2f} fps, "
+        f"{data['tracking_failures']} failures, peak {data['peak_rss_mb']:.0f} MB"
+    )
 
 
 if __name__ == "__main__":

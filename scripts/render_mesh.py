@@ -15,7 +15,8 @@ import numpy as np
 import open3d as o3d
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up=np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+def look_at(eye: np.ndarray, target: np.ndarray, up: tuple = (0.0, 0.0, 1.0)) -> np.ndarray:
+    up = np.asarray(up, float)
     z = target - eye
     z /= np.linalg.norm(z)
     x = np.cross(z, up)
@@ -33,7 +34,10 @@ def render(mesh: o3d.geometry.TriangleMesh, T_world_cam: np.ndarray, w=960, h=72
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
     u, v = np.meshgrid(np.arange(w), np.arange(h))
-    d = np.stack([(u - w / 2) / f, (v - h / 2) / f, np.ones_like(u, float)], -1) @ T_world_cam[:3, :3].T
+    d = (
+        np.stack([(u - w / 2) / f, (v - h / 2) / f, np.ones_like(u, float)], -1)
+        @ T_world_cam[:3, :3].T
+    )
     rays = np.concatenate([np.broadcast_to(T_world_cam[:3, 3], d.shape), d], -1).astype(np.float32)
     out = scene.cast_rays(o3d.core.Tensor(rays))
     hit = np.isfinite(out["t_hit"].numpy())
@@ -52,7 +56,9 @@ def render(mesh: o3d.geometry.TriangleMesh, T_world_cam: np.ndarray, w=960, h=72
         )
     else:
         c = np.full((int(hit.sum()), 3), 0.8)
-    shade = 0.55 + 0.45 * np.abs((normals[hit] * d[hit] / np.linalg.norm(d[hit], axis=1, keepdims=True)).sum(1))
+    shade = 0.55 + 0.45 * np.abs(
+        (normals[hit] * d[hit] / np.linalg.norm(d[hit], axis=1, keepdims=True)).sum(1)
+    )
     img[hit] = 255 * np.clip(c * shade[:, None], 0, 1)
     return cv2.cvtColor(img.astype(np.uint8), cv2.COLOR_RGB2BGR)
 
@@ -67,7 +73,7 @@ def main() -> None:
     bb = mesh.get_axis_aligned_bounding_box()
     center = bb.get_center()
     extent = bb.get_extent()
-    eye = np.array(args.eye) if args.eye else center + np.array([0.0, -1.2, -1.6]) * extent.max()
+    eye = np.array(args.eye) if args.eye else center + np.array([0.0, -0.55, -0.75]) * extent.max()
     T = look_at(eye, center, up=np.array([0.0, -1.0, 0.0]))
     cv2.imwrite(args.png, render(mesh, T))
 

@@ -85,7 +85,9 @@ def run(
         _fail(exc)
         return
     m = result.metrics
-    console.print(f"[green]wrote[/] {run_dir}: trajectory.txt, odometry.txt, mesh.ply, metrics.json")
+    console.print(
+        f"[green]wrote[/] {run_dir}: trajectory.txt, odometry.txt, mesh.ply, metrics.json"
+    )
     line = f"{m['frames']} frames, {m['fps']:.1f} fps, {m['tracking_failures']} tracking failures"
     if "ate_rmse_m" in m:
         line += f", ATE RMSE {m['ate_rmse_m']:.4f} m"
@@ -103,7 +105,9 @@ def synth(
     alias: Annotated[
         bool, typer.Option("--alias", help="Repeat one textured structure in two places.")
     ] = False,
-    noise: Annotated[bool, typer.Option("--noise/--no-noise", help="Kinect-like depth noise.")] = True,
+    noise: Annotated[
+        bool, typer.Option("--noise/--no-noise", help="Kinect-like depth noise.")
+    ] = True,
 ) -> None:
     """Render a synthetic RGB-D sequence with exact ground truth (TUM layout + calibration.yaml)."""
     from slam.data.synthetic import SynthConfig, generate_sequence
@@ -141,7 +145,9 @@ def eval_cmd(
     _setup_logging(False)
     try:
         gt_traj, est_traj = read_tum(gt), read_tum(est)
-        res = slam_eval.evaluate(gt_traj, est_traj, max_diff=t_max_diff, correct_scale=correct_scale)
+        res = slam_eval.evaluate(
+            gt_traj, est_traj, max_diff=t_max_diff, correct_scale=correct_scale
+        )
         if plot is not None:
             aligned = slam_eval.align_trajectory(gt_traj, est_traj, correct_scale, t_max_diff)
             slam_eval.plot_trajectories(plot, gt_traj, {est.stem: aligned}, title=str(est))

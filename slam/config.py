@@ -45,7 +45,7 @@ class TrackingConfig:
     """Frame-to-model projective point-to-plane ICP with RANSAC seeding/rescue."""
 
     downsample: int = 2  # ICP and model ray-casting run at 1/downsample resolution
-    iterations: list[int] = field(default_factory=lambda: [10, 5, 3])  # coarse ... fine
+    iterations: list[int] = field(default_factory=lambda: [6, 4, 2])  # coarse ... fine
     depth_min_m: float = 0.2
     depth_max_m: float = 4.0
     max_correspondence_m: float = 0.07  # projective correspondences farther apart are rejected
@@ -70,8 +70,8 @@ class MappingConfig:
 
     voxel_size_m: float = 0.01
     trunc_voxels: float = 4.0  # truncation distance = trunc_voxels * voxel_size
-    block_resolution: int = 16
-    block_count: int = 8000  # initial hash-map capacity in blocks (grows when needed)
+    block_resolution: int = 8  # voxels per block side; 8 hugs the surface band tighter than 16
+    block_count: int = 20000  # initial hash-map capacity in blocks (grows when needed)
     depth_max_m: float = 3.5
     integrate_color: bool = True
     raycast_weight_threshold: float = 3.0

@@ -15,7 +15,9 @@ def shared_sequence(name: str) -> Path:
     """Path of a sequence in ../shared/datasets, or skip the test with the reason."""
     path = SHARED_DATASETS / name
     if not path.is_dir():
-        pytest.skip(f"real-data sequence {name} not found at {path} (CI provides ../shared/datasets)")
+        pytest.skip(
+            f"real-data sequence {name} not found at {path} (CI provides ../shared/datasets)"
+        )
     return path
 
 
@@ -52,8 +54,11 @@ def room_scene() -> o3d.geometry.TriangleMesh:
     room = o3d.geometry.TriangleMesh.create_box(4.0, 4.0, 3.0).translate((-2.0, -2.0, 0.0))
     room.triangles = o3d.utility.Vector3iVector(np.asarray(room.triangles)[:, ::-1])
     parts = [room]
-    for size, pos in [((0.6, 0.4, 0.8), (-0.5, 0.6, 0.0)), ((0.3, 0.8, 0.5), (0.7, -0.4, 0.0)),
-                      ((0.5, 0.5, 1.2), (1.2, 1.0, 0.0))]:
+    for size, pos in [
+        ((0.6, 0.4, 0.8), (-0.5, 0.6, 0.0)),
+        ((0.3, 0.8, 0.5), (0.7, -0.4, 0.0)),
+        ((0.5, 0.5, 1.2), (1.2, 1.0, 0.0)),
+    ]:
         parts.append(o3d.geometry.TriangleMesh.create_box(*size).translate(pos))
     parts.append(o3d.geometry.TriangleMesh.create_sphere(0.3).translate((0.0, -0.8, 0.9)))
     mesh = parts[0]
@@ -78,6 +83,7 @@ def synth_loop_320(tmp_path_factory) -> Path:
     from slam.data.synthetic import SynthConfig, generate_sequence
 
     out = tmp_path_factory.mktemp("synth") / "loop320"
-    cfg = SynthConfig(frames=300, loop=True, seed=1, width=320, height=240, fx=262.5, fy=262.5,
-                      cx=159.5, cy=119.5)
+    cfg = SynthConfig(
+        frames=300, loop=True, seed=1, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5
+    )
     return generate_sequence(out, cfg)

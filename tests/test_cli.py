@@ -14,12 +14,26 @@ runner = CliRunner()
 def test_eval_json_matches_library(tmp_path):
     rng = np.random.default_rng(0)
     t = np.arange(100) / 30.0
-    gt = Trajectory(t, np.stack([exp_se3(np.r_[0.0, 0.01 * i, 0.0, 0.02 * i, 0.0, 0.001 * i**1.5]) for i in range(100)]))
+    gt = Trajectory(
+        t,
+        np.stack(
+            [exp_se3(np.r_[0.0, 0.01 * i, 0.0, 0.02 * i, 0.0, 0.001 * i**1.5]) for i in range(100)]
+        ),
+    )
     est = Trajectory(t, np.stack([p @ exp_se3(rng.normal(0, 0.003, 6)) for p in gt.poses]))
     write_tum(tmp_path / "gt.txt", gt)
     write_tum(tmp_path / "est.txt", est)
-    res = runner.invoke(app, ["eval", str(tmp_path / "gt.txt"), str(tmp_path / "est.txt"), "--json",
-                              "--plot", str(tmp_path / "p.png")])
+    res = runner.invoke(
+        app,
+        [
+            "eval",
+            str(tmp_path / "gt.txt"),
+            str(tmp_path / "est.txt"),
+            "--json",
+            "--plot",
+            str(tmp_path / "p.png"),
+        ],
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     lib = slam_eval.evaluate(read_tum(tmp_path / "gt.txt"), read_tum(tmp_path / "est.txt"))
@@ -57,7 +71,16 @@ def test_run_writes_the_run_folder(tmp_path):
 
     seq = generate_sequence(
         tmp_path / "seq",
-        SynthConfig(frames=300, render_frames=8, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5),
+        SynthConfig(
+            frames=300,
+            render_frames=8,
+            width=320,
+            height=240,
+            fx=262.5,
+            fy=262.5,
+            cx=159.5,
+            cy=119.5,
+        ),
     )
     out = tmp_path / "run"
     res = runner.invoke(app, ["run", str(seq), "--out", str(out), "--max-frames", "6"])
@@ -74,6 +97,8 @@ def test_run_writes_the_run_folder(tmp_path):
 def test_bad_config_is_a_clear_error(tmp_path):
     cfg = tmp_path / "bad.yaml"
     cfg.write_text("tracking:\n  no_such_key: 1\n")
-    res = runner.invoke(app, ["run", str(tmp_path), "--config", str(cfg), "--out", str(tmp_path / "r")])
+    res = runner.invoke(
+        app, ["run", str(tmp_path), "--config", str(cfg), "--out", str(tmp_path / "r")]
+    )
     assert res.exit_code == 2
     assert "no_such_key" in res.output

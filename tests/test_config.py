@@ -12,7 +12,9 @@ def test_defaults_round_trip_through_yaml(tmp_path):
 
 
 def test_partial_override():
-    cfg = config_from_dict({"mapping": {"voxel_size_m": 0.02}, "tracking": {"ransac": {"iterations": 50}}})
+    cfg = config_from_dict(
+        {"mapping": {"voxel_size_m": 0.02}, "tracking": {"ransac": {"iterations": 50}}}
+    )
     assert cfg.mapping.voxel_size_m == 0.02
     assert cfg.tracking.ransac.iterations == 50
     assert cfg.tracking.downsample == SlamConfig().tracking.downsample

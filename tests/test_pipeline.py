@@ -24,7 +24,9 @@ def test_tracks_synthetic_sequence_accurately(run_result):
     m = res.metrics
     assert m["frames"] == 80
     assert m["tracking_failures"] == 0
-    assert m["ate_rmse_m"] < 0.02, m["ate_rmse_m"]  # measured 0.011; the issue targets 0.01 on the demo
+    assert m["ate_rmse_m"] < 0.02, m[
+        "ate_rmse_m"
+    ]  # measured 0.011; the issue targets 0.01 on the demo
     assert m["rpe_rot_rmse_deg"] < 0.5
 
 
@@ -34,7 +36,9 @@ def test_mesh_lies_on_the_true_surface(run_result, synth_loop_320):
     _, res = run_result
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
-        o3d.t.geometry.TriangleMesh.from_legacy(o3d.io.read_triangle_mesh(str(synth_loop_320 / "scene.ply")))
+        o3d.t.geometry.TriangleMesh.from_legacy(
+            o3d.io.read_triangle_mesh(str(synth_loop_320 / "scene.ply"))
+        )
     )
     # the run's world frame is the first camera; ground truth maps it into the scene's frame
     gt = slam.open_sequence(synth_loop_320).ground_truth
@@ -48,14 +52,28 @@ def test_mesh_lies_on_the_true_surface(run_result, synth_loop_320):
 def test_run_folder_contents(run_result, tmp_path):
     seq, res = run_result
     out = save_run(res, tmp_path / "run")
-    for name in ("trajectory.txt", "odometry.txt", "mesh.ply", "metrics.json", "config.yaml", "tracking.csv"):
+    for name in (
+        "trajectory.txt",
+        "odometry.txt",
+        "mesh.ply",
+        "metrics.json",
+        "config.yaml",
+        "tracking.csv",
+    ):
         assert (out / name).is_file(), name
     traj = read_tum(out / "trajectory.txt")
     assert len(traj) == 80
     np.testing.assert_allclose(traj.timestamps, seq.timestamps()[:80], atol=1e-6)
     np.testing.assert_allclose(traj.poses, res.poses, atol=1e-6)
     metrics = json.loads((out / "metrics.json").read_text())
-    for key in ("frames", "seconds", "fps", "stage_ms_per_frame", "tracking_failures", "ate_rmse_m"):
+    for key in (
+        "frames",
+        "seconds",
+        "fps",
+        "stage_ms_per_frame",
+        "tracking_failures",
+        "ate_rmse_m",
+    ):
         assert key in metrics
     cfg = slam.load_config(out / "config.yaml")
     assert cfg.tracking.downsample == 1
@@ -69,7 +87,9 @@ def test_depth_only_tracking(synth_loop_320, tmp_path):
     (seq_dir / "rgb.txt").unlink()
     seq = slam.open_sequence(seq_dir)
     assert not seq.has_color
-    res = slam.run(seq, config_from_dict({"tracking": {"downsample": 1}, "dataset": {"max_frames": 40}}))
+    res = slam.run(
+        seq, config_from_dict({"tracking": {"downsample": 1}, "dataset": {"max_frames": 40}})
+    )
     assert res.metrics["tracking_failures"] == 0
     assert res.metrics["ate_rmse_m"] < 0.01
 
@@ -81,7 +101,9 @@ def test_corrupt_frame_is_skipped(synth_loop_320, tmp_path):
     shutil.copytree(synth_loop_320, seq_dir)
     (seq_dir / "depth" / "000005.png").write_bytes(b"garbage")
     seq = slam.open_sequence(seq_dir)
-    res = slam.run(seq, config_from_dict({"tracking": {"downsample": 1}, "dataset": {"max_frames": 20}}))
+    res = slam.run(
+        seq, config_from_dict({"tracking": {"downsample": 1}, "dataset": {"max_frames": 20}})
+    )
     assert res.metrics["frames_skipped"] == 1
     assert res.metrics["skipped"][0]["index"] == 5
     assert res.metrics["frames"] == 19

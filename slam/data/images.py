@@ -14,7 +14,9 @@ def read_color(path: Path, index: int) -> np.ndarray:
     """Read a colour image as HxWx3 uint8 RGB; raise FrameReadError naming file and frame."""
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
-        raise FrameReadError(f"frame {index}: cannot decode colour image {path} (missing or corrupt)")
+        raise FrameReadError(
+            f"frame {index}: cannot decode colour image {path} (missing or corrupt)"
+        )
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
@@ -24,7 +26,9 @@ def read_depth(
     """Read a 16-bit depth PNG as float32 metres (0 = no depth)."""
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
-        raise FrameReadError(f"frame {index}: cannot decode depth image {path} (missing or corrupt)")
+        raise FrameReadError(
+            f"frame {index}: cannot decode depth image {path} (missing or corrupt)"
+        )
     if raw.ndim != 2:
         raise FrameReadError(
             f"frame {index}: depth image {path} has shape {raw.shape}, expected a single channel"

@@ -164,7 +164,9 @@ class TumSequence(Sequence):
         )
 
     def _check_first_files(self) -> None:
-        missing = [n for n in self._depth[:1] + (self._rgb or [])[:1] if not (self.path / n).is_file()]
+        missing = [
+            n for n in self._depth[:1] + (self._rgb or [])[:1] if not (self.path / n).is_file()
+        ]
         if missing:
             raise DatasetError(f"{self.path}: image listed but not found: {missing[0]}")
 
@@ -200,7 +202,9 @@ class TumSequence(Sequence):
                 try:
                     self._gt = interpolate_poses(read_tum(gt_path), self._stamps)
                 except TrajectoryError as exc:
-                    log.warning("%s: ground truth unreadable, evaluation disabled: %s", gt_path, exc)
+                    log.warning(
+                        "%s: ground truth unreadable, evaluation disabled: %s", gt_path, exc
+                    )
         return self._gt
 
 

@@ -50,9 +50,7 @@ class OrbExtractor:
         z = depth_m[vi, ui].astype(np.float64)
         ok = (z > self.depth_min_m) & (z < self.depth_max_m)
         u, v, z = ui[ok].astype(float), vi[ok].astype(float), z[ok]
-        pts = np.stack(
-            [(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1
-        )
+        pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
         return FeatureSet(px[ok], desc[ok], pts)
 
 

@@ -70,13 +70,16 @@ def projective_overlap(
     K: np.ndarray,
     T_target_source: np.ndarray,
     threshold_m: float = 0.03,
+    step: int = 2,
 ) -> float:
     """Fraction of valid source pixels that land, after ``T_target_source``, within
     ``threshold_m`` (along the ray) of the target depth at their projected pixel.
 
     An alignment score independent of the optimiser; used to verify and rank ICP results.
+    Every ``step``-th pixel in each direction is tested (the score is a fraction).
     """
-    v, u = np.nonzero(source_depth_m > 0)
+    v, u = np.nonzero(source_depth_m[::step, ::step] > 0)
+    v, u = v * step, u * step
     if len(u) == 0:
         return 0.0
     z = source_depth_m[v, u].astype(np.float64)

@@ -19,9 +19,7 @@ def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) 
     return T[0]
 
 
-def kabsch_batch(
-    src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None
-) -> np.ndarray:
+def kabsch_batch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Batched Kabsch: ``src``, ``dst`` (B, N, 3) -> (B, 4, 4)."""
     if weights is None:
         weights = np.ones(src.shape[:2])
@@ -92,8 +90,10 @@ def ransac_rigid(
     if n < max(sample_size, 3) or n < min_inliers:
         return fail
     rng = rng if rng is not None else np.random.default_rng(0)
-    idx = np.argsort(rng.random((iterations, n)), axis=1)[:, :sample_size] if n <= 64 else (
-        _sample_without_replacement(rng, n, iterations, sample_size)
+    idx = (
+        np.argsort(rng.random((iterations, n)), axis=1)[:, :sample_size]
+        if n <= 64
+        else (_sample_without_replacement(rng, n, iterations, sample_size))
     )
     S, D = src[idx], dst[idx]
     # reject degenerate samples: small triangle area in either set, or inconsistent side lengths

@@ -11,6 +11,7 @@ import numpy as np
 
 from slam.config import TrackingConfig
 from slam.data.base import Frame
+from slam.errors import ConfigError
 from slam.frontend.features import FeatureSet, OrbExtractor, match_descriptors
 from slam.frontend.icp import IcpResult, projective_icp, projective_overlap
 from slam.frontend.pointcloud import downsample_depth, scale_intrinsics
@@ -72,6 +73,8 @@ class Tracker:
     """Estimates ``T_world_cam`` of each new frame against the TSDF model."""
 
     def __init__(self, cfg: TrackingConfig, use_color: bool = True) -> None:
+        if cfg.downsample not in (1, 2, 4):
+            raise ConfigError(f"tracking.downsample must be 1, 2 or 4, got {cfg.downsample}")
         self.cfg = cfg
         self.use_color = use_color
         self.orb = OrbExtractor(cfg.ransac.n_features, cfg.depth_min_m, cfg.depth_max_m)
@@ -81,6 +84,12 @@ class Tracker:
     @property
     def last_keyframe(self) -> Keyframe | None:
         return self.state.keyframes[-1] if self.state.keyframes else None
+
+    def _tracking_depth(self, depth_m: np.ndarray) -> np.ndarray:
+        """Depth at tracking resolution (1/downsample, by depth-aware 2x2 averaging)."""
+        for _ in range(int(np.log2(self.cfg.downsample))):
+            depth_m = downsample_depth(depth_m)
+        return depth_m
 
     def _features(self, frame: Frame) -> FeatureSet | None:
         if not self.use_color or frame.color is None:
@@ -116,19 +125,14 @@ class Tracker:
             feats = self._features(frame)
             self._add_keyframe(frame, T, feats, status)
             st.T_world_prev = T
-            depth0 = frame.depth_m
-            for _ in range(int(np.log2(cfg.downsample))):
-                depth0 = downsample_depth(depth0)
-            st.prev_depth = depth0
+            st.prev_depth = self._tracking_depth(frame.depth_m)
             status.ms = (time.perf_counter() - t0) * 1e3
             return T, status
 
         T_prev = st.T_world_prev
         factor = cfg.downsample
         K_track = scale_intrinsics(frame.K, factor)
-        depth = frame.depth_m
-        for _ in range(int(np.log2(factor))):
-            depth = downsample_depth(depth)
+        depth = self._tracking_depth(frame.depth_m)
         h, w = depth.shape
 
         velocity = st.velocity
@@ -159,7 +163,9 @@ class Tracker:
             Returns the refined pose, the ICP result and the verified overlap score; a
             correction larger than ``max_model_correction`` falls back to a ``trusted`` guess
             (one measured by frame-to-frame ICP or RANSAC, not merely predicted)."""
-            render = model.raycast(K_track, w, h, T_world_guess, False, False, frustum_depth_m=depth)
+            render = model.raycast(
+                K_track, w, h, T_world_guess, False, False, frustum_depth_m=depth
+            )
             icp = icp_against(render.depth_m, np.eye(4))
             step = icp.T_target_source
             if trusted and (

@@ -67,12 +67,16 @@ def test_missing_calibration_is_a_clear_error(tmp_path):
 
 
 def test_tum_defaults_by_folder_name(tmp_path):
-    seq = open_sequence(_write_seq(tmp_path / "rgbd_dataset_freiburg1_xyz", [0.0], [0.0], calib=False))
+    seq = open_sequence(
+        _write_seq(tmp_path / "rgbd_dataset_freiburg1_xyz", [0.0], [0.0], calib=False)
+    )
     assert seq.calibration.fx == 517.3 and seq.calibration.depth_scale == 5000.0
 
 
 def test_calibration_override(tmp_path):
-    seq = open_sequence(_write_seq(tmp_path / "s", [0.0], [0.0]), calibration_overrides={"fx": 99.0})
+    seq = open_sequence(
+        _write_seq(tmp_path / "s", [0.0], [0.0]), calibration_overrides={"fx": 99.0}
+    )
     assert seq.calibration.fx == 99.0 and seq.calibration.fy == 50.0
 
 

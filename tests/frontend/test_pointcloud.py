@@ -50,7 +50,9 @@ def test_normals_zero_at_holes_and_edges():
 def test_downsample_ignores_holes():
     d = np.array([[1.0, 0.0], [1.02, 0.0]], np.float32)
     assert abs(downsample_depth(d)[0, 0] - 1.01) < 1e-6
-    d = np.array([[1.0, 2.0], [1.0, 2.0]], np.float32)  # across a depth edge: the far side is ignored
+    d = np.array(
+        [[1.0, 2.0], [1.0, 2.0]], np.float32
+    )  # across a depth edge: the far side is ignored
     assert downsample_depth(d)[0, 0] == 1.0
     d = np.array([[0.0, 2.0], [2.0, 2.0]], np.float32)
     assert downsample_depth(d)[0, 0] == 0.0  # top-left invalid -> invalid

@@ -14,7 +14,9 @@ def _fuse_sphere(voxel: float):
     poses = []
     for ang in np.linspace(0, 2 * np.pi, 12, endpoint=False):
         for elev in (-0.4, 0.4):
-            eye = center + 1.3 * np.array([np.cos(ang) * np.cos(elev), np.sin(ang) * np.cos(elev), np.sin(elev)])
+            eye = center + 1.3 * np.array(
+                [np.cos(ang) * np.cos(elev), np.sin(ang) * np.cos(elev), np.sin(elev)]
+            )
             T = look_at(eye, center)
             poses.append(T)
             vol.integrate(render_depth(sphere, K, 320, 240, T), None, K, T)
@@ -40,7 +42,9 @@ def test_raycast_renders_the_surface():
     vol, center, radius, K, poses = _fuse_sphere(voxel)
     T = poses[0]
     r = vol.render(K, 320, 240, T)
-    truth = render_depth(o3d.geometry.TriangleMesh.create_sphere(radius, 120).translate(center), K, 320, 240, T)
+    truth = render_depth(
+        o3d.geometry.TriangleMesh.create_sphere(radius, 120).translate(center), K, 320, 240, T
+    )
     both = (r.depth_m > 0) & (truth > 0)
     assert both.sum() > 0.9 * (truth > 0).sum()
     # Open3D's ray-caster reads the nearest voxel while marching: its depth carries a bias below
