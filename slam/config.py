@@ -44,6 +44,7 @@ class RansacConfig:
 class TrackingConfig:
     """Frame-to-model projective point-to-plane ICP with RANSAC seeding/rescue."""
 
+    frame_to_frame: bool = True  # initialise model ICP by ICP against the previous frame
     downsample: int = 2  # ICP and model ray-casting run at 1/downsample resolution
     iterations: list[int] = field(default_factory=lambda: [6, 4, 2])  # coarse ... fine
     depth_min_m: float = 0.2

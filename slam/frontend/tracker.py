@@ -208,7 +208,7 @@ class Tracker:
                 T_prev_cur = inv_T(T_prev) @ g
                 status.path = "ransac+icp"
                 trusted = True
-        if st.prev_depth is not None:
+        if cfg.frame_to_frame and st.prev_depth is not None:
             f2f = icp_against(st.prev_depth, T_prev_cur)
             status.f2f_fitness = round(float(f2f.fitness), 4)
             if f2f.fitness >= cfg.min_fitness and (
