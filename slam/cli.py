@@ -71,10 +71,12 @@ def run(
             task = progress.add_task("tracking", total=None, fps=0.0, state="")
             import time
 
-            t0 = time.perf_counter()
+            t0: list[float] = []  # set at the first frame, after any demo generation
 
             def on_frame(done: int, total: int, status) -> None:
-                fps = done / max(time.perf_counter() - t0, 1e-9)
+                if not t0:
+                    t0.append(time.perf_counter())
+                fps = (done - 1) / max(time.perf_counter() - t0[0], 1e-9)
                 state = "" if status is None else f"{status.path} overlap {status.overlap:.2f}"
                 progress.update(task, completed=done, total=total, fps=fps, state=state)
 
