@@ -159,12 +159,13 @@ def _evaluate(gt: Trajectory, traj: Trajectory, odometry: Trajectory) -> dict[st
     out: dict[str, Any] = {}
     try:
         final = slam_eval.evaluate(gt, traj)
-        odo = slam_eval.ate(gt, odometry)
+        same = np.array_equal(traj.poses, odometry.poses)  # no correction applied (yet)
+        odo_rmse = final["ate_rmse_m"] if same else slam_eval.ate(gt, odometry).rmse
     except SlamError as exc:
         log.warning("evaluation against ground truth failed: %s", exc)
         return {"evaluation_error": str(exc)}
     out["ate_rmse_m"] = final["ate_rmse_m"]
-    out["ate_rmse_odometry_m"] = odo.rmse
+    out["ate_rmse_odometry_m"] = odo_rmse
     out["rpe_trans_rmse_m"] = final["rpe_trans_rmse_m"]
     out["rpe_rot_rmse_deg"] = final["rpe_rot_rmse_deg"]
     out["matched_poses"] = final["matched_poses"]
@@ -184,7 +185,7 @@ def save_run(result: RunResult, out_dir: str | Path) -> Path:
         log.warning("%s: the map is empty (no surface seen with enough weight); no mesh.ply", out)
     if result.config is not None:
         atomic_write_text(out / "config.yaml", result.config.to_yaml())
-    if result.tracking:
+    if result.tracking and (result.config is None or result.config.output.save_tracking_log):
         buf = io.StringIO()
         rows = [s.as_row() for s in result.tracking]
         writer = csv.DictWriter(buf, fieldnames=list(rows[0]))

@@ -38,20 +38,6 @@ class Calibration:
         """3x3 intrinsic matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
-    def scaled(self, factor: int) -> Calibration:
-        """Intrinsics of the image downsampled by an integer ``factor`` (pixel-centre convention)."""
-        if factor == 1:
-            return self
-        return Calibration(
-            width=self.width // factor,
-            height=self.height // factor,
-            fx=self.fx / factor,
-            fy=self.fy / factor,
-            cx=(self.cx + 0.5) / factor - 0.5,
-            cy=(self.cy + 0.5) / factor - 0.5,
-            depth_scale=self.depth_scale,
-        )
-
     def to_dict(self) -> dict:
         return {
             "width": self.width,
