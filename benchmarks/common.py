@@ -14,11 +14,12 @@ RESULTS = ROOT / "benchmarks" / "results"
 
 
 def sequence_path(name: str) -> Path:
-    """``demo`` (the built-in synthetic sequence) or a folder name under ../shared/datasets."""
-    if name == "demo":
-        from slam.demo import demo_sequence_path
+    """``demo`` / ``demo-drift`` (built-in synthetic sequences) or a folder under
+    ../shared/datasets."""
+    from slam.demo import BUILTIN, demo_sequence_path
 
-        return demo_sequence_path()
+    if name in BUILTIN:
+        return demo_sequence_path(name)
     path = Path(name)
     return path if path.is_dir() else SHARED / name
 

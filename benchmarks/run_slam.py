@@ -23,6 +23,7 @@ def main() -> None:
     parser.add_argument("--config", default=None, help="YAML config overrides")
     parser.add_argument("--max-frames", type=int, default=None)
     parser.add_argument("--out", default=None, help="also save the run folder here")
+    parser.add_argument("--tag", default="", help="suffix of the result name (config variants)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     path = sequence_path(args.sequence)
@@ -43,15 +44,22 @@ def main() -> None:
         "rpe_trans_rmse_m": m.get("rpe_trans_rmse_m"),
         "fps": m["fps"],
         "fps_tracking_fusion": m["fps_tracking_fusion"],
+        "seconds": m["seconds"],
+        "loops_accepted": m["loops_accepted"],
+        "loops_rejected": m["loops_rejected"],
+        "keyframes": m["keyframes"],
+        "submaps": m["submaps"],
         "stage_ms_per_frame": m["stage_ms_per_frame"],
+        "stage_ms_total": m["stage_ms_total"],
         "tracking_failures": m["tracking_failures"],
         "tracking_paths": m["tracking_paths"],
         "peak_rss_mb": round(peak_rss_mb(), 1),
         "machine": machine(),
     }
-    out = write_result(f"slam-{args.sequence}", data)
+    out = write_result(f"slam-{args.sequence}{args.tag}", data)
     print(
-        f"{out}: ATE {data['ate_rmse_m']:.4f} m, {data['fps']:.2f} fps, "
+        f"{out}: ATE {data['ate_rmse_m']:.4f} m (odometry {data['ate_rmse_odometry_m']:.4f} m), "
+        f"{data['loops_accepted']} loops, {data['seconds']:.1f} s, {data['fps']:.2f} fps, "
         f"{data['tracking_failures']} failures, peak {data['peak_rss_mb']:.0f} MB"
     )
 

@@ -110,6 +110,14 @@ def synth(
     noise: Annotated[
         bool, typer.Option("--noise/--no-noise", help="Kinect-like depth noise.")
     ] = True,
+    drift_bias: Annotated[
+        float,
+        typer.Option(
+            "--drift-bias",
+            help="Radial depth distortion (e.g. 0.006) that makes odometry drift, for loop "
+            "closure experiments.",
+        ),
+    ] = 0.0,
 ) -> None:
     """Render a synthetic RGB-D sequence with exact ground truth (TUM layout + calibration.yaml)."""
     from slam.data.synthetic import SynthConfig, generate_sequence
@@ -117,7 +125,10 @@ def synth(
     _setup_logging(False)
     try:
         path = generate_sequence(
-            out, SynthConfig(frames=frames, loop=loop, seed=seed, alias=alias, noise=noise)
+            out,
+            SynthConfig(
+                frames=frames, loop=loop, seed=seed, alias=alias, noise=noise, drift_bias=drift_bias
+            ),
         )
     except SlamError as exc:
         _fail(exc)
@@ -125,10 +136,114 @@ def synth(
     typer.echo(f"wrote {frames} frames to {path}")
 
 
+_STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
+
+
+def _fmt_stats(stats, unit: str, digits: int = 4) -> str:
+    if stats is None:
+        return "n/a"
+    return (
+        f"rmse {stats.rmse:.{digits}f}  mean {stats.mean:.{digits}f}  median "
+        f"{stats.median:.{digits}f}  std {stats.std:.{digits}f}  min {stats.min:.{digits}f}  "
+        f"max {stats.max:.{digits}f} {unit}"
+    )
+
+
+def _echo_result(res) -> None:
+    typer.echo(f"matched poses      {res.matched_poses} (alignment {res.alignment})")
+    typer.echo(f"ATE                {_fmt_stats(res.ate, 'm')}")
+    for r in res.rpe:
+        if r.trans is None:
+            typer.echo(f"RPE {r.label:<14} n/a ({r.error})")
+            continue
+        typer.echo(f"RPE {r.label:<14} trans {_fmt_stats(r.trans, 'm')}  ({r.pairs} pairs)")
+        typer.echo(f"{'':18} rot   {_fmt_stats(r.rot, 'deg', 3)}")
+    d = res.drift
+    typer.echo(
+        f"drift              {d.percent:.3f} % ({d.final_error_m:.4f} m final error over "
+        f"{d.path_length_m:.2f} m, {d.alignment} alignment)"
+    )
+
+
+def _echo_run(ev) -> None:
+    """Final vs odometry side by side."""
+    rows: list[tuple[str, str, str]] = []
+
+    def val(res, get, fmt):
+        if res is None:
+            return "-"
+        v = get(res)
+        return "n/a" if v is None else format(v, fmt)
+
+    fin, odo = ev.final, ev.odometry
+    rows.append(
+        (
+            "matched poses",
+            val(fin, lambda r: r.matched_poses, "d"),
+            val(odo, lambda r: r.matched_poses, "d"),
+        )
+    )
+    for k in _STAT_KEYS:
+        rows.append(
+            (
+                f"ATE {k} [m]",
+                val(fin, lambda r, k=k: getattr(r.ate, k), ".4f"),
+                val(odo, lambda r, k=k: getattr(r.ate, k), ".4f"),
+            )
+        )
+    for i, r in enumerate(fin.rpe):
+
+        def t(res, i=i):
+            x = res.rpe[i].trans
+            return None if x is None else x.rmse
+
+        def rot(res, i=i):
+            x = res.rpe[i].rot
+            return None if x is None else x.rmse
+
+        rows.append((f"RPE {r.label} trans rmse [m]", val(fin, t, ".4f"), val(odo, t, ".4f")))
+        rows.append((f"RPE {r.label} rot rmse [deg]", val(fin, rot, ".3f"), val(odo, rot, ".3f")))
+    rows.append(
+        (
+            "drift [%]",
+            val(fin, lambda r: r.drift.percent, ".3f"),
+            val(odo, lambda r: r.drift.percent, ".3f"),
+        )
+    )
+    rows.append(
+        (
+            "final position error [m]",
+            val(fin, lambda r: r.drift.final_error_m, ".4f"),
+            val(odo, lambda r: r.drift.final_error_m, ".4f"),
+        )
+    )
+    typer.echo(f"run          {ev.run_dir}")
+    typer.echo(f"ground truth {ev.ground_truth}")
+    if ev.loops_accepted is not None:
+        typer.echo(f"loops        {ev.loops_accepted} accepted")
+    if ev.odometry is None:
+        typer.echo("odometry     (no odometry.txt)")
+    elif ev.odometry_identical:
+        typer.echo("odometry     identical to the final trajectory (no pose corrected)")
+    width = max(len(r[0]) for r in rows)
+    typer.echo(f"{'':{width}}  {'final':>10}  {'odometry':>10}")
+    for name, a, b in rows:
+        typer.echo(f"{name:{width}}  {a:>10}  {b:>10}")
+
+
 @app.command("eval")
 def eval_cmd(
-    gt: Annotated[Path, typer.Argument(help="Ground-truth trajectory (TUM format).")],
-    est: Annotated[Path, typer.Argument(help="Estimated trajectory (TUM format).")],
+    gt: Annotated[
+        Path,
+        typer.Argument(
+            help="A run folder (evaluates its trajectory.txt and odometry.txt against the "
+            "sequence's ground truth), or a ground-truth trajectory file (TUM format)."
+        ),
+    ],
+    est: Annotated[
+        Optional[Path],
+        typer.Argument(help="Estimated trajectory (TUM format) when GT is a file."),
+    ] = None,
     plot: Annotated[
         Optional[Path], typer.Option("--plot", help="Write a top-view plot to this PNG.")
     ] = None,
@@ -139,16 +254,75 @@ def eval_cmd(
     correct_scale: Annotated[
         bool, typer.Option("--correct-scale", help="Sim(3) alignment instead of SE(3).")
     ] = False,
+    rpe_delta: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            "--rpe-delta",
+            help="RPE pair spacing, repeatable: '1f' (frames), '1s' (seconds), '0.5m' "
+            "(metres travelled). Default: 1f, 1s, 1m.",
+        ),
+    ] = None,
+    drift_align: Annotated[
+        Optional[str],
+        typer.Option(
+            "--drift-align",
+            help="Alignment for drift: 'origin' (first poses made equal: all accumulated "
+            "error shows) or se3/sim3/scale/none. Default: the ATE alignment.",
+        ),
+    ] = None,
+    gt_file: Annotated[
+        Optional[Path],
+        typer.Option("--gt", help="Ground-truth file for a run folder (default: from its config)."),
+    ] = None,
 ) -> None:
-    """ATE (SE(3)-aligned, as evo_ape -a) and RPE (1-frame pairs) of EST against GT."""
+    """ATE, RPE and drift (as evo_ape / evo_rpe -a) of a trajectory or of a whole run folder.
+
+    `slam eval RUN_DIR` evaluates the final trajectory and the odometry of a run, so the effect of
+    loop closure is one command; `slam eval GT EST` evaluates any TUM-format trajectory.
+    """
     from slam import eval as slam_eval
     from slam.trajectory import read_tum
 
     _setup_logging(False)
+    deltas = rpe_delta or ["1f", "1s", "1m"]
     try:
+        if gt.is_dir():
+            if est is not None:
+                raise SlamError(
+                    f"{gt} is a run folder: give it alone (`slam eval RUN_DIR`), or give two "
+                    f"trajectory files (`slam eval GT EST`)"
+                )
+            ev = slam_eval.evaluate_run(gt, gt_file, t_max_diff, correct_scale, deltas, drift_align)
+            if plot is not None:
+                ref, _ = slam_eval.load_run_ground_truth(gt, gt_file)
+                trajs = {}
+                if ev.odometry is not None and not ev.odometry_identical:
+                    odo = read_tum(gt / "odometry.txt")
+                    trajs["odometry"] = slam_eval.align_trajectory(
+                        ref, odo, correct_scale, t_max_diff
+                    )
+                trajs["final"] = slam_eval.align_trajectory(
+                    ref, read_tum(gt / "trajectory.txt"), correct_scale, t_max_diff
+                )
+                slam_eval.plot_trajectories(plot, ref, trajs, title=str(gt))
+            if as_json:
+                typer.echo(json.dumps(ev.as_dict()))
+            else:
+                _echo_run(ev)
+            return
+        if est is None:
+            raise SlamError(
+                f"{gt} is not a folder: give a run folder (`slam eval RUN_DIR`) or a ground-truth "
+                f"and an estimated trajectory file (`slam eval GT EST`)"
+            )
         gt_traj, est_traj = read_tum(gt), read_tum(est)
-        res = slam_eval.evaluate(
-            gt_traj, est_traj, max_diff=t_max_diff, correct_scale=correct_scale
+        res = slam_eval.evaluate_full(
+            gt_traj,
+            est_traj,
+            max_diff=t_max_diff,
+            correct_scale=correct_scale,
+            rpe_deltas=deltas,
+            drift_alignment=drift_align,
         )
         if plot is not None:
             aligned = slam_eval.align_trajectory(gt_traj, est_traj, correct_scale, t_max_diff)
@@ -157,14 +331,92 @@ def eval_cmd(
         _fail(exc)
         return
     if as_json:
-        typer.echo(json.dumps(res))
+        typer.echo(json.dumps(res.as_dict()))
         return
-    typer.echo(f"matched poses      {res['matched_poses']}")
-    typer.echo(f"ATE RMSE           {res['ate_rmse_m']:.6f} m")
-    typer.echo(f"ATE mean / max     {res['ate_mean_m']:.6f} / {res['ate_max_m']:.6f} m")
-    typer.echo(f"RPE trans RMSE     {res['rpe_trans_rmse_m']:.6f} m")
-    typer.echo(f"RPE rot RMSE       {res['rpe_rot_rmse_deg']:.6f} deg")
-    typer.echo(f"drift              {res['drift_percent']:.3f} % of {res['path_length_m']:.2f} m")
+    _echo_result(res)
+
+
+@app.command("report")
+def report_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Run folder written by `slam run`.")],
+    out: Annotated[
+        Optional[Path],
+        typer.Option("--out", "-o", help="Folder for report.md and the PNGs (default: RUN_DIR)."),
+    ] = None,
+    gt_file: Annotated[
+        Optional[Path],
+        typer.Option("--gt", help="Ground-truth file (default: from the run's config)."),
+    ] = None,
+    t_max_diff: Annotated[
+        float, typer.Option("--t-max-diff", help="Max timestamp difference to associate (s).")
+    ] = 0.01,
+    correct_scale: Annotated[
+        bool, typer.Option("--correct-scale", help="Sim(3) alignment instead of SE(3).")
+    ] = False,
+) -> None:
+    """Write RUN_DIR/report.md with plots: top view with loop edges, error over time, timing."""
+    from slam.report import write_report
+
+    _setup_logging(False)
+    try:
+        rep = write_report(run_dir, out, gt_file, t_max_diff, correct_scale)
+    except SlamError as exc:
+        _fail(exc)
+        return
+    typer.echo(f"wrote {rep.markdown}")
+    for p in rep.plots:
+        typer.echo(f"wrote {p}")
+    if rep.evaluation is None:
+        typer.echo(f"no ground truth: {rep.ground_truth_error}")
+
+
+@app.command("bench")
+def bench_cmd(
+    suite: Annotated[Path, typer.Argument(help="Suite YAML: sequences x configs.")],
+    out: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--out", "-o", help="Folder for the tables and run folders [runs/bench/SUITE_NAME]."
+        ),
+    ] = None,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Runs at a time (local).")] = 1,
+    ray: Annotated[
+        Optional[str],
+        typer.Option(
+            "--ray",
+            help="Run as Ray tasks: a cluster address, 'auto' (the running cluster) or "
+            "'local' (start a local instance with --jobs CPUs). Needs `pip install ray`.",
+        ),
+    ] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Run every sequence x configuration of SUITE; write one table (bench.md/.csv/.json).
+
+    Each run is a separate process (or Ray task) writing OUT/runs/<sequence>__<config>/; a failed
+    run is a row with its error and the suite goes on. Exit code 1 when any run failed.
+    """
+    from slam.bench import format_markdown, load_suite, run_suite
+
+    _setup_logging(verbose)
+    try:
+        s = load_suite(suite)
+        out_dir = out if out is not None else Path("runs") / "bench" / s.name
+
+        def progress(row: dict, done: int, total: int) -> None:
+            state = "[green]ok[/]" if row["status"] == "ok" else f"[red]failed[/] {row['error']}"
+            ate = row.get("ate_rmse_m")
+            ate_txt = f" ATE {ate:.4f} m" if isinstance(ate, float) else ""
+            console.print(f"[{done}/{total}] {row['sequence']} / {row['config']}: {state}{ate_txt}")
+
+        res = run_suite(s, out_dir, jobs=jobs, ray_address=ray, progress=progress)
+    except SlamError as exc:
+        _fail(exc)
+        return
+    typer.echo(format_markdown(res.rows))
+    for path in res.tables.values():
+        typer.echo(f"wrote {path}")
+    if res.failed:
+        raise typer.Exit(code=1)
 
 
 def main() -> None:

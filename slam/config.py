@@ -77,6 +77,56 @@ class MappingConfig:
     integrate_color: bool = True
     raycast_weight_threshold: float = 3.0
     mesh_weight_threshold: float = 3.0
+    # submaps: each fused in the frame of its anchor keyframe, re-fused under corrected anchors
+    submap_keyframes: int = 10  # a new submap every this many keyframes (0: a single map)
+    submap_overlap_frames: int = 5  # frames fused into both the old and the new submap
+    submap_seed_views: int = 8  # a new submap starts with the old one seen from its last views
+    submap_block_count: int = 4000  # initial hash-map capacity of a submap, in blocks
+    reintegration_stride: int = 5  # re-fuse a submap from every n-th of its frames' viewpoints
+    reintegration_downsample: int = 2  # those views are ray-cast at 1/n resolution
+    spill_submaps: bool = True  # finished submaps wait on disk (temporary folder), not in memory
+
+
+@dataclass
+class LoopConfig:
+    """Revisit detection (bag of binary words over keyframe ORB) and geometric verification."""
+
+    enabled: bool = True
+    vocabulary_words: int = 1000  # words of the online vocabulary (k-majority on ORB)
+    vocabulary_keyframes: int = 10  # keyframes whose descriptors train the vocabulary
+    exclude_recent_keyframes: int = 8  # the most recent keyframes are not revisit candidates
+    max_candidates: int = 3  # best-scoring candidates verified per keyframe
+    min_score: float = 0.05  # bag-of-words similarity (sum of min of L1-normalised tf-idf)
+    ratio: float = 0.8  # Lowe's ratio for descriptor matches between the two keyframes
+    ransac_iterations: int = 1000
+    ransac_threshold_m: float = 0.03
+    min_inliers: int = 25
+    min_inlier_ratio: float = 0.2  # RANSAC inliers / descriptor matches
+    min_icp_fitness: float = 0.3
+    min_overlap: float = 0.5  # fraction of pixels within overlap_threshold after ICP
+    overlap_threshold_m: float = 0.03
+    max_icp_correction_m: float = 0.15  # ICP moving the RANSAC pose more is a failure
+    max_icp_correction_deg: float = 10.0
+    # the loop's relative pose must agree with the current estimate within a tolerance that
+    # grows with the path travelled between the two keyframes (odometry drift is bounded)
+    consistency_m: float = 0.2
+    consistency_per_m: float = 0.1
+    consistency_deg: float = 10.0
+    consistency_deg_per_m: float = 5.0
+
+
+@dataclass
+class BackendConfig:
+    """GTSAM keyframe pose graph: odometry edges, robust loop edges, Levenberg-Marquardt."""
+
+    # edge information = per-correspondence J^T J of the registration (its shape) / sigma^2
+    odometry_sigma_m: float = 0.003  # floor of an odometry edge's sigma
+    odometry_drift_per_m: float = 0.03  # odometry edge sigma grows with the motion it spans
+    loop_sigma_m: float = 0.02
+    loop_kernel: str = "cauchy"  # cauchy | huber | none
+    loop_kernel_width: float = 2.0  # in standard deviations of the loop edge
+    loop_prune_sigma: float = 5.0  # a loop still this far off after optimisation is removed
+    max_iterations: int = 100
 
 
 @dataclass
@@ -90,6 +140,8 @@ class SlamConfig:
     dataset: DatasetConfig = field(default_factory=DatasetConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
+    backend: BackendConfig = field(default_factory=BackendConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
 
     def to_dict(self) -> dict[str, Any]:

@@ -13,6 +13,12 @@ log = logging.getLogger(__name__)
 #: Bump when the generator's output changes so stale caches are regenerated.
 DEMO_VERSION = 1
 DEMO_CONFIG = SynthConfig(frames=300, loop=True, seed=0)
+#: Built-in synthetic sequences by name: the demo, and the same loop with a depth distortion
+#: that makes odometry drift (~5 deg of heading over the loop) for loop-closure benchmarks.
+BUILTIN = {
+    "demo": DEMO_CONFIG,
+    "demo-drift": SynthConfig(frames=300, loop=True, seed=0, drift_bias=0.006),
+}
 
 
 def cache_dir() -> Path:
@@ -24,10 +30,13 @@ def cache_dir() -> Path:
     return Path(base) / "rgbd-slam"
 
 
-def demo_sequence_path() -> Path:
-    """Path of the demo sequence, generating it on first use (about half a minute)."""
-    path = cache_dir() / f"demo-v{DEMO_VERSION}"
+def demo_sequence_path(name: str = "demo") -> Path:
+    """Path of a built-in synthetic sequence (:data:`BUILTIN`), generating it into the cache
+    folder on first use (about half a minute)."""
+    if name not in BUILTIN:
+        raise KeyError(f"unknown built-in sequence {name!r}; choose one of {sorted(BUILTIN)}")
+    path = cache_dir() / f"{name}-v{DEMO_VERSION}"
     if not (path / ".complete").is_file():
-        log.info("generating the synthetic demo sequence into %s", path)
-        generate_sequence(path, DEMO_CONFIG)
+        log.info("generating the synthetic sequence %s into %s", name, path)
+        generate_sequence(path, BUILTIN[name])
     return path

@@ -10,6 +10,11 @@ Everything numeric is delegated to evo's library so that the values match the ``
 * :func:`rpe`        == ``evo_rpe tum GT EST -a --delta 1 --delta_unit f`` for ``-r trans_part``
   (metres) and ``-r angle_deg`` (degrees), consecutive pairs (``all_pairs=False``)
 
+* :func:`drift`      final-position error in % of the ground-truth path length (defined there)
+* :func:`evaluate_full` all of the above (any number of RPE deltas) as one :class:`EvalResult`;
+  :func:`evaluate` its flat headline dict; :func:`evaluate_run` both trajectories of a run folder
+  (``trajectory.txt`` and ``odometry.txt``) against the sequence's ground truth
+
 The ground truth is always evo's *reference* (first file) and the estimate the second, and the
 estimate is the one that gets aligned. Inputs are never modified (evo aligns in place, so this
 module works on copies).
@@ -20,7 +25,9 @@ from __future__ import annotations
 import copy
 import logging
 import os
+import re
 import tempfile
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -37,14 +44,25 @@ from slam.trajectory import Trajectory, read_tum
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "DriftResult",
+    "EvalResult",
+    "RPEResult",
+    "RunEvaluation",
     "Stats",
     "align_trajectory",
+    "ape_per_pose",
     "associate",
     "ate",
+    "drift",
     "evaluate",
     "evaluate_files",
+    "evaluate_full",
+    "evaluate_run",
+    "load_run_ground_truth",
+    "parse_delta",
     "plot_trajectories",
     "rpe",
+    "save_figure",
 ]
 
 #: Minimum number of associated poses for any metric (Umeyama needs 3 points).
@@ -68,6 +86,116 @@ class Stats:
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
+
+
+@dataclass
+class RPEResult:
+    """RPE over consecutive pose pairs ``delta`` ``unit`` apart (``unit``: frames, seconds or
+    metres). ``trans`` in metres, ``rot`` in degrees; both ``None`` and ``error`` set when no pair
+    could be formed (e.g. a 1 m delta on a 0.5 m trajectory)."""
+
+    delta: float
+    unit: str
+    pairs: int
+    trans: Stats | None
+    rot: Stats | None
+    error: str | None = None
+
+    @property
+    def label(self) -> str:
+        """Short human label: ``1 frame``, ``5 frames``, ``1 s``, ``0.5 m``."""
+        value = f"{self.delta:g}"
+        if self.unit == "frames":
+            return f"{value} frame" + ("" if self.delta == 1 else "s")
+        return f"{value} {'s' if self.unit == 'seconds' else 'm'}"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "delta": self.delta,
+            "unit": self.unit,
+            "pairs": self.pairs,
+            "trans_m": None if self.trans is None else self.trans.as_dict(),
+            "rot_deg": None if self.rot is None else self.rot.as_dict(),
+            "error": self.error,
+        }
+
+
+@dataclass
+class DriftResult:
+    """Final-position drift: ``final_error_m`` is the distance between the last associated
+    estimated position (after ``alignment``) and the ground-truth position at the same time,
+    ``path_length_m`` the length of the associated ground-truth path (sum of distances between
+    consecutive associated poses) and ``percent = 100 * final_error_m / path_length_m`` (NaN for a
+    zero-length path)."""
+
+    final_error_m: float
+    path_length_m: float
+    percent: float
+    alignment: str
+    final_timestamp: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class EvalResult:
+    """Everything :func:`evaluate_full` computes for one estimate against one ground truth.
+
+    ``alignment`` is how the estimate was aligned for ATE and RPE: ``se3`` (Umeyama, evo ``-a``),
+    ``sim3`` (``-as``), ``scale`` (``-s``) or ``none``; ``scale`` is the Sim(3) scale applied
+    (1 unless corrected). ``rpe`` has one entry per requested delta, in order.
+    """
+
+    matched_poses: int
+    alignment: str
+    scale: float
+    max_diff: float
+    ate: Stats
+    rpe: list[RPEResult]
+    drift: DriftResult
+
+    def headline(self) -> dict[str, Any]:
+        """The flat dict of :func:`evaluate` (RPE from the first delta; ``None`` if it failed)."""
+        first = self.rpe[0] if self.rpe else None
+        return {
+            "ate_rmse_m": self.ate.rmse,
+            "ate_mean_m": self.ate.mean,
+            "ate_median_m": self.ate.median,
+            "ate_std_m": self.ate.std,
+            "ate_max_m": self.ate.max,
+            "rpe_trans_rmse_m": None if first is None or first.trans is None else first.trans.rmse,
+            "rpe_rot_rmse_deg": None if first is None or first.rot is None else first.rot.rmse,
+            "matched_poses": self.matched_poses,
+            "drift_percent": self.drift.percent,
+            "path_length_m": self.drift.path_length_m,
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        """Headline keys (as :func:`evaluate`, plus ``ate_min_m``) and the full detail nested
+        under ``ate``, ``rpe`` and ``drift``; JSON-ready (NaN becomes ``None``)."""
+        out: dict[str, Any] = self.headline()
+        out["ate_min_m"] = self.ate.min
+        out["drift_final_error_m"] = self.drift.final_error_m
+        out.update(
+            alignment=self.alignment,
+            scale=self.scale,
+            max_diff_s=self.max_diff,
+            ate=self.ate.as_dict(),
+            rpe=[r.as_dict() for r in self.rpe],
+            drift=self.drift.as_dict(),
+        )
+        return _json_ready(out)
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
 
 
 # ----------------------------------------------------------------------------------------------
@@ -183,13 +311,23 @@ def _ape_stats(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> Stats:
 
 _UNITS = {
     "frames": Unit.frames,
+    "frame": Unit.frames,
     "f": Unit.frames,
     "meters": Unit.meters,
     "metres": Unit.meters,
+    "meter": Unit.meters,
+    "metre": Unit.meters,
     "m": Unit.meters,
     "seconds": Unit.seconds,
+    "second": Unit.seconds,
+    "sec": Unit.seconds,
     "s": Unit.seconds,
 }
+
+
+#: Canonical names of the RPE delta units (evo's ``Unit.meters`` is written "metres" here).
+_UNIT_NAMES = {Unit.frames: "frames", Unit.seconds: "seconds", Unit.meters: "metres"}
+_UNIT_SHORT = {Unit.frames: "f", Unit.seconds: "s", Unit.meters: "m"}
 
 
 def _parse_unit(delta_unit: str | Unit) -> Unit:
@@ -204,6 +342,27 @@ def _parse_unit(delta_unit: str | Unit) -> Unit:
     return unit
 
 
+def parse_delta(spec: str | float | tuple[float, str]) -> tuple[float, str]:
+    """An RPE delta as ``(value, unit)`` with unit ``frames``, ``seconds`` or ``metres``.
+
+    Accepts ``(1, "frames")``, a bare number (frames) or text such as ``"1f"``, ``"10 frames"``,
+    ``"0.5s"``, ``"1m"``, ``"2 metres"``.
+    """
+    if isinstance(spec, tuple):
+        value, unit = spec
+        return float(value), _UNIT_NAMES[_parse_unit(unit)]
+    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        return float(spec), "frames"
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([A-Za-z]*)\s*", str(spec))
+    if m is None:
+        raise TrajectoryError(
+            f"cannot read RPE delta {spec!r}: write a number and a unit, e.g. '1f' (frames), "
+            f"'1s' (seconds) or '0.5m' (metres)"
+        )
+    unit = m.group(2) or "frames"
+    return float(m.group(1)), _UNIT_NAMES[_parse_unit(unit)]
+
+
 def _ids_by_time(stamps: np.ndarray, delta: float) -> list[int]:
     """Consecutive pose ids at least ``delta`` seconds apart (like evo's by-path selection)."""
     ids = [0]
@@ -213,9 +372,10 @@ def _ids_by_time(stamps: np.ndarray, delta: float) -> list[int]:
     return ids
 
 
-def _rpe_stats(
+def _rpe_metrics(
     ref: PoseTrajectory3D, est: PoseTrajectory3D, delta: float, unit: Unit
-) -> tuple[Stats, Stats]:
+) -> tuple[Stats, Stats, int]:
+    """(translation stats m, rotation stats deg, number of pose pairs) of evo's RPE."""
     if not (np.isfinite(delta) and delta > 0):
         raise TrajectoryError(f"RPE delta must be a positive number, got {delta}")
     if unit is Unit.frames and float(delta) != int(delta):
@@ -235,6 +395,7 @@ def _rpe_stats(
         est.reduce_to_ids(ids)
         delta, unit = 1, Unit.frames
     out = []
+    pairs = 0
     for relation in (PoseRelation.translation_part, PoseRelation.rotation_angle_deg):
         metric = metrics.RPE(relation, delta=delta, delta_unit=unit, all_pairs=False)
         try:
@@ -245,7 +406,15 @@ def _rpe_stats(
                 f"({est.path_length:.3f} m of path): {exc}"
             ) from exc
         out.append(_stats(metric))
-    return out[0], out[1]
+        pairs = len(metric.error)
+    return out[0], out[1], pairs
+
+
+def _rpe_stats(
+    ref: PoseTrajectory3D, est: PoseTrajectory3D, delta: float, unit: Unit
+) -> tuple[Stats, Stats]:
+    t, r, _ = _rpe_metrics(ref, est, delta, unit)
+    return t, r
 
 
 # ----------------------------------------------------------------------------------------------
@@ -323,6 +492,145 @@ def align_trajectory(
     return Trajectory(np.array(est.timestamps, copy=True), out)
 
 
+def _alignment_name(align: bool, correct_scale: bool) -> str:
+    if align:
+        return "sim3" if correct_scale else "se3"
+    return "scale" if correct_scale else "none"
+
+
+_DRIFT_ALIGNMENTS = ("se3", "sim3", "scale", "none", "origin")
+
+
+def _drift_evo(ref: PoseTrajectory3D, est: PoseTrajectory3D, alignment: str) -> DriftResult:
+    """Drift of an associated (and, unless ``origin``, already aligned) estimate."""
+    if alignment == "origin":
+        est = copy.deepcopy(est)
+        est.align_origin(ref)
+    path = float(ref.path_length)
+    final_err = float(np.linalg.norm(est.positions_xyz[-1] - ref.positions_xyz[-1]))
+    if path > 0:
+        pct = final_err / path * 100.0
+    else:
+        logger.warning("ground truth path length is zero: drift percent is undefined (NaN)")
+        pct = float("nan")
+    return DriftResult(
+        final_error_m=final_err,
+        path_length_m=path,
+        percent=float(pct),
+        alignment=alignment,
+        final_timestamp=float(est.timestamps[-1]),
+    )
+
+
+def drift(
+    gt: Trajectory, est: Trajectory, alignment: str = "se3", max_diff: float = 0.01
+) -> DriftResult:
+    """Final-position drift of ``est`` in % of the ground-truth path length.
+
+    The poses are associated by timestamp (as :func:`associate`); the estimate is then aligned to
+    the ground truth by ``alignment``: ``se3`` (the Umeyama fit over all associated positions that
+    :func:`ate` uses, evo ``-a``), ``sim3`` (``-as``), ``scale`` (``-s``), ``origin`` (the rigid
+    motion that puts the first associated estimated pose exactly on the first ground-truth pose,
+    evo ``--align_origin``: all the error accumulated from the start shows at the end) or ``none``.
+    ``final_error_m`` is the distance between the last associated positions and ``percent`` =
+    100 * ``final_error_m`` / ground-truth path length over the associated poses.
+    """
+    if alignment not in _DRIFT_ALIGNMENTS:
+        raise TrajectoryError(
+            f"unknown drift alignment {alignment!r}; use one of {', '.join(_DRIFT_ALIGNMENTS)}"
+        )
+    ref, est_s = _associate_evo(gt, est, max_diff)
+    if alignment in ("se3", "sim3", "scale"):
+        _align_evo(ref, est_s, alignment != "scale", alignment != "se3")
+    return _drift_evo(ref, est_s, alignment)
+
+
+def ape_per_pose(
+    gt: Trajectory,
+    est: Trajectory,
+    align: bool = True,
+    correct_scale: bool = False,
+    max_diff: float = 0.01,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pose translation error (m) after the alignment :func:`ate` uses.
+
+    Returns ``(timestamps of the associated estimated poses, errors)``; the errors are evo's APE
+    ``error`` array, so their statistics are exactly :func:`ate`'s.
+    """
+    ref, est_s = _associate_evo(gt, est, max_diff)
+    _align_evo(ref, est_s, align, correct_scale)
+    metric = metrics.APE(PoseRelation.translation_part)
+    metric.process_data((ref, est_s))
+    return np.array(est_s.timestamps, dtype=float), np.array(metric.error, dtype=float)
+
+
+def evaluate_full(
+    gt: Trajectory,
+    est: Trajectory,
+    max_diff: float = 0.01,
+    align: bool = True,
+    correct_scale: bool = False,
+    rpe_deltas: Sequence[str | float | tuple[float, str]] = ((1, "frames"),),
+    drift_alignment: str | None = None,
+) -> EvalResult:
+    """ATE, RPE for each of ``rpe_deltas`` and drift of ``est`` against ``gt``.
+
+    One association and one alignment (as :func:`ate`: SE(3) Umeyama by default, Sim(3) with
+    ``correct_scale``) serve every metric, so the numbers equal :func:`ate`, :func:`rpe` and
+    :func:`drift` called separately with the same options. ``rpe_deltas`` entries are anything
+    :func:`parse_delta` reads (``"1f"``, ``"1s"``, ``"0.5m"``, ``(1, "frames")``); a delta that
+    yields no pose pair is recorded with its ``error`` instead of raising. ``drift_alignment``
+    ``None`` uses the ATE alignment, else any :func:`drift` alignment (e.g. ``"origin"``).
+    """
+    deltas = [parse_delta(d) for d in rpe_deltas]
+    if drift_alignment is not None and drift_alignment not in _DRIFT_ALIGNMENTS:
+        raise TrajectoryError(
+            f"unknown drift alignment {drift_alignment!r}; "
+            f"use one of {', '.join(_DRIFT_ALIGNMENTS)}"
+        )
+    ref, est_s = _associate_evo(gt, est, max_diff)
+    unaligned = copy.deepcopy(est_s) if drift_alignment is not None else None
+    S = _align_evo(ref, est_s, align, correct_scale)
+    scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
+    a = _ape_stats(ref, est_s)
+    rpes: list[RPEResult] = []
+    for value, unit_name in deltas:
+        try:
+            t, r, pairs = _rpe_metrics(ref, est_s, value, _parse_unit(unit_name))
+            rpes.append(RPEResult(value, unit_name, pairs, t, r))
+        except TrajectoryError as exc:
+            logger.warning("RPE over %g %s: %s", value, unit_name, exc)
+            rpes.append(RPEResult(value, unit_name, 0, None, None, str(exc)))
+    name = _alignment_name(align, correct_scale)
+    if drift_alignment is None or drift_alignment == name:
+        dr = _drift_evo(ref, est_s, name)
+    else:
+        assert unaligned is not None
+        if drift_alignment in ("se3", "sim3", "scale"):
+            _align_evo(ref, unaligned, drift_alignment != "scale", drift_alignment != "se3")
+        dr = _drift_evo(ref, unaligned, drift_alignment)
+    result = EvalResult(
+        matched_poses=int(ref.num_poses),
+        alignment=name,
+        scale=scale,
+        max_diff=float(max_diff),
+        ate=a,
+        rpe=rpes,
+        drift=dr,
+    )
+    first = rpes[0] if rpes else None
+    logger.info(
+        "ATE rmse %.4f m, RPE %s, %d poses matched, drift %.2f %%",
+        a.rmse,
+        "n/a"
+        if first is None or first.trans is None or first.rot is None
+        else f"{first.trans.rmse:.4f} m / {first.rot.rmse:.3f} deg",
+        result.matched_poses,
+        dr.percent,
+    )
+    return result
+
+
 def evaluate(
     gt: Trajectory,
     est: Trajectory,
@@ -335,46 +643,178 @@ def evaluate(
     Keys: ``ate_rmse_m, ate_mean_m, ate_median_m, ate_std_m, ate_max_m`` (as :func:`ate`),
     ``rpe_trans_rmse_m, rpe_rot_rmse_deg`` (as :func:`rpe` with delta = 1 frame, same alignment),
     ``matched_poses``, ``path_length_m`` (of the associated ground truth) and ``drift_percent``
-    (error of the last associated position after alignment / ``path_length_m`` * 100; NaN for a
-    zero-length path).
+    (error of the last associated position after the same alignment / ``path_length_m`` * 100,
+    see :func:`drift`; NaN for a zero-length path). :func:`evaluate_full` has the full detail.
     """
-    ref, est_s = _associate_evo(gt, est, max_diff)
-    _align_evo(ref, est_s, align, correct_scale)
-    a = _ape_stats(ref, est_s)
-    rt, rr = _rpe_stats(ref, est_s, 1, Unit.frames)
-    path = float(ref.path_length)
-    final_err = float(np.linalg.norm(est_s.positions_xyz[-1] - ref.positions_xyz[-1]))
-    if path > 0:
-        drift = final_err / path * 100.0
-    else:
-        logger.warning("ground truth path length is zero: drift_percent is undefined (NaN)")
-        drift = float("nan")
-    result = {
-        "ate_rmse_m": a.rmse,
-        "ate_mean_m": a.mean,
-        "ate_median_m": a.median,
-        "ate_std_m": a.std,
-        "ate_max_m": a.max,
-        "rpe_trans_rmse_m": rt.rmse,
-        "rpe_rot_rmse_deg": rr.rmse,
-        "matched_poses": int(ref.num_poses),
-        "drift_percent": float(drift),
-        "path_length_m": path,
-    }
-    logger.info(
-        "ATE rmse %.4f m, RPE %.4f m / %.3f deg, %d poses matched, drift %.2f %%",
-        a.rmse,
-        rt.rmse,
-        rr.rmse,
-        result["matched_poses"],
-        drift,
-    )
-    return result
+    return evaluate_full(gt, est, max_diff, align, correct_scale).headline()
 
 
 def evaluate_files(gt_path: str | Path, est_path: str | Path, **kw: Any) -> dict[str, Any]:
     """:func:`evaluate` on two TUM files (read with :func:`slam.trajectory.read_tum`)."""
     return evaluate(read_tum(gt_path), read_tum(est_path), **kw)
+
+
+# ----------------------------------------------------------------------------------------------
+# run folders
+
+
+@dataclass
+class RunEvaluation:
+    """Both trajectories of a run folder against the sequence's ground truth.
+
+    ``final`` evaluates ``trajectory.txt`` (after loop closure), ``odometry`` ``odometry.txt``
+    (frontend only; ``None`` when the file is absent). ``ground_truth`` says where the ground truth
+    came from; ``odometry_identical`` is true when no pose was corrected.
+    """
+
+    run_dir: Path
+    ground_truth: str
+    final: EvalResult
+    odometry: EvalResult | None
+    odometry_identical: bool
+    loops_accepted: int | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "run_dir": str(self.run_dir),
+            "ground_truth": self.ground_truth,
+            "loops_accepted": self.loops_accepted,
+            "odometry_identical": self.odometry_identical,
+            "final": self.final.as_dict(),
+            "odometry": None if self.odometry is None else self.odometry.as_dict(),
+        }
+        if self.odometry is not None:
+            out["ate_rmse_change_m"] = self.final.ate.rmse - self.odometry.ate.rmse
+        return _json_ready(out)
+
+
+def _read_run_config(run_dir: Path) -> dict[str, Any]:
+    import yaml
+
+    path = run_dir / "config.yaml"
+    if not path.is_file():
+        return {}
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise TrajectoryError(f"{path}: cannot read the run's config: {exc}") from exc
+    return data if isinstance(data, dict) else {}
+
+
+def load_run_ground_truth(
+    run_dir: str | Path, gt_path: str | Path | None = None
+) -> tuple[Trajectory, str]:
+    """The ground truth of the sequence a run folder was made from, and where it was found.
+
+    ``gt_path`` (a TUM file) wins when given. Otherwise the sequence folder is ``dataset.path`` in
+    the run's ``config.yaml``, else ``sequence`` in its ``metrics.json`` (relative paths: to the
+    working directory, then to the run folder):
+    its ``groundtruth.txt`` when present (the file evo would read), else the sequence loader's
+    ground truth (:func:`slam.data.loader.open_sequence`, e.g. 7-Scenes ``*.pose.txt``).
+    Raises :class:`TrajectoryError` saying what is missing and suggesting ``--gt``.
+    """
+    run_dir = Path(run_dir)
+    if gt_path is not None:
+        return read_tum(gt_path), str(gt_path)
+    cfg = _read_run_config(run_dir)
+    dataset = cfg.get("dataset") or {}
+    if not isinstance(dataset, dict):
+        dataset = {}
+    seq_path = dataset.get("path") or _run_metrics(run_dir).get("sequence")
+    if not seq_path:
+        raise TrajectoryError(
+            f"{run_dir}: no ground truth: neither config.yaml (dataset.path) nor metrics.json "
+            f"(sequence) names the sequence folder; give the ground-truth file with --gt FILE"
+        )
+    candidates = [Path(seq_path).expanduser()]
+    if not candidates[0].is_absolute():
+        candidates.append(run_dir / seq_path)
+    seq_dir = next((c for c in candidates if c.is_dir()), None)
+    if seq_dir is None:
+        raise TrajectoryError(
+            f"{run_dir}: the sequence folder recorded for the run ({seq_path}) does not exist "
+            f"here; give the ground-truth file with --gt FILE"
+        )
+    gt_file = seq_dir / "groundtruth.txt"
+    if gt_file.is_file():
+        return read_tum(gt_file), str(gt_file)
+    from slam.data.loader import open_sequence
+    from slam.errors import SlamError
+
+    try:
+        seq = open_sequence(
+            seq_dir, dataset.get("layout") or "auto", dataset.get("calibration") or None
+        )
+        gt = seq.ground_truth
+    except SlamError as exc:
+        raise TrajectoryError(
+            f"{run_dir}: cannot read the ground truth of {seq_dir}: {exc}; "
+            f"give the ground-truth file with --gt FILE"
+        ) from exc
+    if gt is None or len(gt) == 0:
+        raise TrajectoryError(
+            f"{seq_dir}: the sequence has no ground truth (no groundtruth.txt or poses); "
+            f"give the ground-truth file with --gt FILE"
+        )
+    return gt, f"{seq_dir} ({type(seq).__name__} ground truth)"
+
+
+def _run_metrics(run_dir: Path) -> dict[str, Any]:
+    """The run's metrics.json, or ``{}`` when absent or unreadable."""
+    import json
+
+    try:
+        data = json.loads((run_dir / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _loops_accepted(run_dir: Path) -> int | None:
+    value = _run_metrics(run_dir).get("loops_accepted")
+    return int(value) if isinstance(value, (int, float)) else None
+
+
+def evaluate_run(
+    run_dir: str | Path,
+    gt_path: str | Path | None = None,
+    max_diff: float = 0.01,
+    correct_scale: bool = False,
+    rpe_deltas: Sequence[str | float | tuple[float, str]] = ((1, "frames"),),
+    drift_alignment: str | None = None,
+) -> RunEvaluation:
+    """Evaluate a run folder's ``trajectory.txt`` and ``odometry.txt`` against its ground truth
+    (found by :func:`load_run_ground_truth`), each with its own alignment, same options as
+    :func:`evaluate_full`."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise TrajectoryError(f"{run_dir}: run folder not found")
+    traj_path = run_dir / "trajectory.txt"
+    if not traj_path.is_file():
+        raise TrajectoryError(
+            f"{run_dir}: no trajectory.txt in the run folder (is it the --out folder of `slam run`?)"
+        )
+    gt, source = load_run_ground_truth(run_dir, gt_path)
+    est = read_tum(traj_path)
+    kw: dict[str, Any] = dict(
+        max_diff=max_diff,
+        correct_scale=correct_scale,
+        rpe_deltas=rpe_deltas,
+        drift_alignment=drift_alignment,
+    )
+    final = evaluate_full(gt, est, **kw)
+    odo_path = run_dir / "odometry.txt"
+    odometry = None
+    identical = True
+    if odo_path.is_file():
+        odo = read_tum(odo_path)
+        identical = len(odo) == len(est) and bool(
+            np.array_equal(odo.timestamps, est.timestamps) and np.array_equal(odo.poses, est.poses)
+        )
+        odometry = final if identical else evaluate_full(gt, odo, **kw)
+    else:
+        logger.warning("%s: no odometry.txt; only the final trajectory is evaluated", run_dir)
+    return RunEvaluation(run_dir, source, final, odometry, identical, _loops_accepted(run_dir))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -397,17 +837,37 @@ def _plot_axes(points: np.ndarray) -> tuple[int, int]:
     return a, b
 
 
+def save_figure(fig: Any, path_png: str | Path) -> Path:
+    """Save a matplotlib ``Figure`` as PNG atomically (temporary file, then rename)."""
+    path = Path(path_png)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            fig.savefig(f, format="png")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
 def plot_trajectories(
     path_png: str | Path,
     gt: Trajectory | None,
     trajectories: dict[str, Trajectory],
     title: str = "",
+    loop_edges: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+    loop_label: str = "loop edge",
 ) -> None:
     """Top view of the ground truth and any number of trajectories, saved as a PNG.
 
     The plane is spanned by the two axes along which the ground truth (or, without one, all
     trajectories) extends most; x-z when undecided. Trajectories are plotted as given (use
-    :func:`align_trajectory` first to overlay an estimate on the ground truth). Written atomically.
+    :func:`align_trajectory` first to overlay an estimate on the ground truth). ``loop_edges``
+    are pairs of 3D positions joined by a line (e.g. the two camera positions of an accepted loop
+    closure), all under one legend entry ``loop_label``. Written atomically.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -443,6 +903,19 @@ def plot_trajectories(
         ax.plot(
             p[0, a], p[0, b], marker="o", color=line.get_color(), markersize=4, linestyle="none"
         )
+    for k, (p0, p1) in enumerate(loop_edges):
+        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+        ax.plot(
+            [p0[a], p1[a]],
+            [p0[b], p1[b]],
+            color="red",
+            linewidth=0.9,
+            alpha=0.75,
+            marker=".",
+            markersize=4,
+            label=f"{loop_label} ({len(loop_edges)})" if k == 0 else None,
+            zorder=3,
+        )
     ax.set_xlabel(f"{_AXIS_NAMES[a]} [m]")
     ax.set_ylabel(f"{_AXIS_NAMES[b]} [m]")
     ax.set_aspect("equal", adjustable="datalim")
@@ -451,15 +924,5 @@ def plot_trajectories(
     if title:
         ax.set_title(title)
     fig.tight_layout()
-
-    path = Path(path_png)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    path = save_figure(fig, path_png)
     logger.debug("wrote trajectory plot %s", path)

@@ -22,10 +22,14 @@ from slam.errors import TrajectoryError
 from slam.eval import (
     Stats,
     align_trajectory,
+    ape_per_pose,
     associate,
     ate,
+    drift,
     evaluate,
     evaluate_files,
+    evaluate_full,
+    evaluate_run,
     plot_trajectories,
     rpe,
 )
@@ -439,3 +443,360 @@ def test_real_7scenes_gt_matches_evo_cli(tmp_path, evo_cli):
     assert_stats_equal(ours_t, evo_cli("evo_rpe", *common, "-r", "trans_part"))
     assert_stats_equal(ours_r, evo_cli("evo_rpe", *common, "-r", "angle_deg"))
     assert evaluate(gt, est)["matched_poses"] == len(gt) - 2
+
+
+# ----------------------------------------------------------------------------------------------
+# (7) drift, RPE per second / per metre, evaluate_full: equal to evo's library
+
+
+def _evo_ape_errors(ref, est, align: bool = True, correct_scale: bool = False) -> np.ndarray:
+    res = evo_ape(
+        ref, est, metrics.PoseRelation.translation_part, align=align, correct_scale=correct_scale
+    )
+    return np.asarray(res.np_arrays["error_array"])
+
+
+@pytest.mark.parametrize(
+    "alignment,align,correct_scale",
+    [("se3", True, False), ("sim3", True, True), ("scale", False, True), ("none", False, False)],
+)
+def test_drift_matches_evo(files, alignment, align, correct_scale):
+    gt, est = read_tum(files[0]), read_tum(files[1])
+    d = drift(gt, est, alignment=alignment)
+    ref, est_e = _evo_load_synced(*files)
+    errors = _evo_ape_errors(ref, est_e, align, correct_scale)
+    assert d.final_error_m == pytest.approx(errors[-1], rel=RTOL)
+    assert d.path_length_m == pytest.approx(ref.path_length, rel=RTOL)
+    assert d.percent == pytest.approx(100 * errors[-1] / ref.path_length, rel=RTOL)
+    assert d.final_timestamp == est_e.timestamps[-1] and d.alignment == alignment
+
+
+def test_drift_origin_matches_evo_align_origin(files):
+    gt, est = read_tum(files[0]), read_tum(files[1])
+    d = drift(gt, est, alignment="origin")
+    ref, est_e = _evo_load_synced(*files)
+    est_e.align_origin(ref)
+    res = evo_ape(ref, est_e, metrics.PoseRelation.translation_part, align=False)
+    err = np.asarray(res.np_arrays["error_array"])
+    assert err[0] < 1e-12  # first poses made identical
+    assert d.final_error_m == pytest.approx(err[-1], rel=RTOL)
+    # a pure drift that grows linearly: origin alignment sees all of it
+    g = smooth_gt()
+    poses = np.array(g.poses)
+    poses[:, :3, 3] += np.linspace(0, 1, len(g))[:, None] * np.array([0.0, 0.06, 0.08])
+    dr = drift(g, Trajectory(g.timestamps, poses), alignment="origin")
+    assert dr.final_error_m == pytest.approx(0.1, rel=1e-9)
+    assert dr.percent == pytest.approx(10.0 / g.path_length(), rel=1e-9)
+    with pytest.raises(TrajectoryError, match="unknown drift alignment"):
+        drift(g, g, alignment="umeyama")
+
+
+def _ids_at_least(stamps: np.ndarray, delta: float) -> list[int]:
+    ids = [0]
+    for i in range(1, len(stamps)):
+        if stamps[i] - stamps[ids[-1]] >= delta - 1e-6:
+            ids.append(i)
+    return ids
+
+
+@pytest.mark.parametrize("delta", [0.25, 1.0])
+def test_rpe_seconds_matches_evo_on_selected_pairs(files, delta):
+    """evo has no time delta: the pairs are consecutive poses >= delta s apart (on the estimate's
+    timestamps, which here are irregular: subsampled, with dropped poses), then evo's RPE."""
+    gt, est = read_tum(files[0]), read_tum(files[1])
+    ours_t, ours_r = rpe(gt, est, delta=delta, delta_unit="seconds")
+    ref, est_e = _evo_load_synced(*files)
+    ids = _ids_at_least(np.asarray(est_e.timestamps), delta)
+    gaps = np.diff(np.asarray(est_e.timestamps)[ids])
+    assert np.all(gaps >= delta - 1e-6) and np.all(gaps < delta + 0.05)
+    ref.reduce_to_ids(ids)
+    est_e.reduce_to_ids(ids)
+    for relation, ours in (
+        (metrics.PoseRelation.translation_part, ours_t),
+        (metrics.PoseRelation.rotation_angle_deg, ours_r),
+    ):
+        res = evo_rpe(
+            copy.deepcopy(ref),
+            copy.deepcopy(est_e),
+            relation,
+            delta=1,
+            delta_unit=metrics.Unit.frames,
+            all_pairs=False,
+            align=True,
+        )
+        assert_stats_equal(ours, res.stats)
+
+
+def test_parse_delta():
+    from slam.eval import parse_delta
+
+    assert parse_delta("1f") == (1.0, "frames")
+    assert parse_delta("10 frames") == (10.0, "frames")
+    assert parse_delta("0.5s") == (0.5, "seconds")
+    assert parse_delta("2 metres") == (2.0, "metres")
+    assert parse_delta("1m") == (1.0, "metres")
+    assert parse_delta("3") == (3.0, "frames")
+    assert parse_delta(5) == (5.0, "frames")
+    assert parse_delta((0.25, "meters")) == (0.25, "metres")
+    with pytest.raises(TrajectoryError, match="e.g. '1f'"):
+        parse_delta("one metre")
+    with pytest.raises(TrajectoryError, match="delta_unit"):
+        parse_delta("1 furlong")
+
+
+def test_evaluate_full_equals_separate_metrics(files):
+    gt, est = read_tum(files[0]), read_tum(files[1])
+    for correct_scale in (False, True):
+        res = evaluate_full(
+            gt, est, correct_scale=correct_scale, rpe_deltas=["1f", "5f", "0.5s", "0.25m"]
+        )
+        assert res.alignment == ("sim3" if correct_scale else "se3")
+        assert res.ate == ate(gt, est, correct_scale=correct_scale)
+        expected = [(1, "frames"), (5, "frames"), (0.5, "seconds"), (0.25, "metres")]
+        for r, (delta, unit) in zip(res.rpe, expected):
+            assert (r.delta, r.unit) == (delta, unit)
+            t, rot = rpe(gt, est, delta=delta, delta_unit=unit, correct_scale=correct_scale)
+            assert r.trans == t and r.rot == rot and r.pairs > 0
+        align = "sim3" if correct_scale else "se3"
+        assert res.drift == drift(gt, est, alignment=align)
+    assert res.rpe[0].pairs == len(est) - 1  # consecutive 1-frame pairs
+    assert [r.label for r in res.rpe] == ["1 frame", "5 frames", "0.5 s", "0.25 m"]
+    # origin drift on request, ATE untouched
+    res_o = evaluate_full(gt, est, drift_alignment="origin")
+    assert res_o.drift == drift(gt, est, alignment="origin")
+    assert res_o.ate == ate(gt, est)
+    # headline == evaluate(); as_dict is JSON with the detail
+    assert evaluate_full(gt, est).headline() == evaluate(gt, est)
+    d = json.loads(json.dumps(res.as_dict()))
+    assert d["ate"]["rmse"] == res.ate.rmse and d["ate_min_m"] == res.ate.min
+    assert d["rpe"][3]["unit"] == "metres" and d["rpe"][3]["trans_m"]["max"] == res.rpe[3].trans.max
+    assert d["drift"]["percent"] == res.drift.percent and d["alignment"] == "sim3"
+    assert d["scale"] != 1.0 and abs(d["scale"] - 1.0) < 0.05
+
+
+def test_evaluate_full_records_impossible_rpe_delta(files):
+    gt, est = read_tum(files[0]), read_tum(files[1])
+    res = evaluate_full(gt, est, rpe_deltas=["1f", "1000s", "500m"])
+    assert res.rpe[0].trans is not None
+    for r in res.rpe[1:]:
+        assert r.trans is None and r.rot is None and r.pairs == 0
+    assert "longer than" in res.rpe[1].error
+    assert "RPE failed" in res.rpe[2].error
+    d = res.as_dict()
+    assert d["rpe"][1]["trans_m"] is None and d["rpe"][1]["error"]
+
+
+def test_ape_per_pose(files):
+    gt, est = read_tum(files[0]), read_tum(files[1])
+    t, err = ape_per_pose(gt, est)
+    ref, est_e = _evo_load_synced(*files)
+    np.testing.assert_array_equal(t, est_e.timestamps)
+    np.testing.assert_allclose(err, _evo_ape_errors(ref, est_e), rtol=RTOL, atol=1e-15)
+    assert float(np.sqrt(np.mean(err**2))) == pytest.approx(ate(gt, est).rmse, rel=1e-12)
+
+
+# ----------------------------------------------------------------------------------------------
+# (8) run folders
+
+
+def _make_run(run: Path, seq: Path | None, final: Trajectory, odometry: Trajectory | None):
+    run.mkdir(parents=True, exist_ok=True)
+    write_tum(run / "trajectory.txt", final)
+    if odometry is not None:
+        write_tum(run / "odometry.txt", odometry)
+    if seq is not None:
+        (run / "config.yaml").write_text(f"dataset:\n  path: {seq}\n  layout: auto\n")
+    (run / "metrics.json").write_text(json.dumps({"frames": len(final), "loops_accepted": 3}))
+    return run
+
+
+def test_evaluate_run_reports_final_and_odometry(tmp_path):
+    gt = smooth_gt(n=300, rate=30.0, t0=0.0)
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    write_tum(seq / "groundtruth.txt", gt)
+    odo = perturb(gt, seed=1, step=1, drop=(), dt=0.0, sigma_t=0.01)
+    final = perturb(gt, seed=2, step=1, drop=(), dt=0.0, sigma_t=0.003)
+    run = _make_run(tmp_path / "run", seq, final, odo)
+    ev = evaluate_run(run, rpe_deltas=["1f", "1s"])
+    g = read_tum(seq / "groundtruth.txt")
+    assert ev.ground_truth == str(seq / "groundtruth.txt")
+    assert ev.final.ate == ate(g, read_tum(run / "trajectory.txt"))
+    assert ev.odometry.ate == ate(g, read_tum(run / "odometry.txt"))
+    assert ev.final.ate.rmse < ev.odometry.ate.rmse
+    assert not ev.odometry_identical and ev.loops_accepted == 3
+    assert ev.final.rpe[1].trans == rpe(g, read_tum(run / "trajectory.txt"), 1, "seconds")[0]
+    d = json.loads(json.dumps(ev.as_dict()))
+    assert d["ate_rmse_change_m"] == pytest.approx(ev.final.ate.rmse - ev.odometry.ate.rmse)
+    assert d["final"]["ate_rmse_m"] == ev.final.ate.rmse
+    # odometry identical to the final trajectory: evaluated once
+    run2 = _make_run(tmp_path / "run2", seq, final, final)
+    ev2 = evaluate_run(run2)
+    assert ev2.odometry_identical and ev2.odometry is ev2.final
+    # --gt wins over config; no odometry.txt
+    run3 = _make_run(tmp_path / "run3", None, final, None)
+    ev3 = evaluate_run(run3, gt_path=seq / "groundtruth.txt")
+    assert ev3.odometry is None and ev3.final.ate == ev.final.ate
+
+
+def test_evaluate_run_7scenes_ground_truth_from_loader(tmp_path):
+    """No groundtruth.txt: the sequence loader's ground truth (7-Scenes *.pose.txt)."""
+    gt = smooth_gt(n=40, rate=30.0, t0=0.0)
+    seq = tmp_path / "seq-01"
+    seq.mkdir()
+    for i, T in enumerate(gt.poses):
+        (seq / f"frame-{i:06d}.depth.png").write_bytes(b"")  # never decoded here
+        np.savetxt(seq / f"frame-{i:06d}.pose.txt", T)
+    est = perturb(gt, seed=4, step=1, drop=(), dt=0.0)
+    run = _make_run(tmp_path / "run", seq, est, est)
+    ev = evaluate_run(run)
+    assert "SevenScenesSequence" in ev.ground_truth
+    assert ev.final.matched_poses == 40
+    assert ev.final.ate.rmse == pytest.approx(ate(gt, read_tum(run / "trajectory.txt")).rmse)
+
+
+def test_evaluate_run_errors(tmp_path):
+    with pytest.raises(TrajectoryError, match="run folder not found"):
+        evaluate_run(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(TrajectoryError, match="no trajectory.txt"):
+        evaluate_run(tmp_path / "empty")
+    gt = smooth_gt(n=50)
+    run = _make_run(tmp_path / "run", None, gt, gt)
+    (run / "metrics.json").unlink()
+    with pytest.raises(TrajectoryError, match="--gt FILE"):
+        evaluate_run(run)
+    (run / "config.yaml").write_text(f"dataset:\n  path: {tmp_path / 'moved'}\n")
+    with pytest.raises(TrajectoryError, match=r"does not exist here.*--gt FILE"):
+        evaluate_run(run)
+    # timestamps that do not associate: counts and the CLI option in the message
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    write_tum(seq / "groundtruth.txt", Trajectory(gt.timestamps + 100.0, gt.poses))
+    (run / "config.yaml").write_text(f"dataset:\n  path: {seq}\n")
+    with pytest.raises(TrajectoryError, match=r"only 0 of 50 .*--t-max-diff"):
+        evaluate_run(run)
+
+
+@pytest.mark.realdata
+def test_real_7scenes_drift_rpe_units_match_evo(tmp_path):
+    if not SEVEN_SCENES_GT.is_file():
+        pytest.skip(f"real dataset not available: {SEVEN_SCENES_GT} is missing")
+    gt = read_tum(SEVEN_SCENES_GT)
+    est = perturb(gt, seed=5, step=1, dt=0.002, sigma_t=0.004, sigma_r=0.002, drop=(10, 700))
+    est_path = tmp_path / "est.txt"
+    write_tum(est_path, est)
+    est = read_tum(est_path)
+    files = (SEVEN_SCENES_GT, est_path)
+    res = evaluate_full(gt, est, correct_scale=True, rpe_deltas=["0.5m", "10f"])
+    ref, est_e = _evo_load_synced(*files)
+    sim3 = evo_ape(
+        ref, est_e, metrics.PoseRelation.translation_part, align=True, correct_scale=True
+    )
+    assert_stats_equal(res.ate, sim3.stats)
+    for r, unit in zip(res.rpe, (metrics.Unit.meters, metrics.Unit.frames)):
+        ref, est_e = _evo_load_synced(*files)
+        theirs = evo_rpe(
+            ref, est_e, metrics.PoseRelation.translation_part, delta=r.delta, delta_unit=unit,
+            all_pairs=False, align=True, correct_scale=True,
+        )  # fmt: skip
+        assert_stats_equal(r.trans, theirs.stats)
+        assert r.pairs == len(theirs.np_arrays["error_array"])
+    ref, est_e = _evo_load_synced(*files)
+    errors = _evo_ape_errors(ref, est_e, True, True)
+    assert res.drift.final_error_m == pytest.approx(errors[-1], rel=RTOL)
+    assert res.drift.path_length_m == pytest.approx(ref.path_length, rel=RTOL)
+
+
+@pytest.mark.realdata
+def test_real_run_folder_eval_matches_evo_cli(tmp_path, evo_cli):
+    """A run folder on 7scenes-1000: `evaluate_run` == evo_ape / evo_rpe on the same files."""
+    if not SEVEN_SCENES_GT.is_file():
+        pytest.skip(f"real dataset not available: {SEVEN_SCENES_GT} is missing")
+    gt = read_tum(SEVEN_SCENES_GT)
+    odo = perturb(gt, seed=6, step=1, dt=0.0, sigma_t=0.006, sigma_r=0.003, drop=(), offset=RIGID)
+    final = perturb(gt, seed=7, step=1, dt=0.0, sigma_t=0.002, sigma_r=0.001, drop=())
+    run = _make_run(tmp_path / "run", SEVEN_SCENES_GT.parent, final, odo)
+    ev = evaluate_run(run)
+    for res, name in ((ev.final, "trajectory.txt"), (ev.odometry, "odometry.txt")):
+        assert_stats_equal(res.ate, evo_cli("evo_ape", "tum", SEVEN_SCENES_GT, run / name, "-a"))
+        theirs = evo_cli(
+            "evo_rpe", "tum", SEVEN_SCENES_GT, run / name, "-a", "--delta", "1",
+            "--delta_unit", "f", "-r", "trans_part",
+        )  # fmt: skip
+        assert_stats_equal(res.rpe[0].trans, theirs)
+
+
+# ----------------------------------------------------------------------------------------------
+# (9) `slam eval` command line
+
+
+def _cli():
+    from typer.testing import CliRunner
+
+    from slam.cli import app
+
+    return CliRunner(), app
+
+
+def test_cli_eval_run_dir(tmp_path):
+    runner, app = _cli()
+    gt = smooth_gt(n=300, rate=30.0, t0=0.0)
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    write_tum(seq / "groundtruth.txt", gt)
+    odo = perturb(gt, seed=1, step=1, drop=(), dt=0.0, sigma_t=0.01)
+    final = perturb(gt, seed=2, step=1, drop=(), dt=0.0, sigma_t=0.003)
+    run = _make_run(tmp_path / "run", seq, final, odo)
+    res = runner.invoke(app, ["eval", str(run), "--json", "--plot", str(tmp_path / "p.png")])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    ev = evaluate_run(run, rpe_deltas=["1f", "1s", "1m"])
+    assert out["final"]["ate_rmse_m"] == ev.final.ate.rmse
+    assert out["odometry"]["ate_rmse_m"] == ev.odometry.ate.rmse
+    assert out["final"]["ate"]["median"] == ev.final.ate.median
+    assert [r["unit"] for r in out["final"]["rpe"]] == ["frames", "seconds", "metres"]
+    assert out["odometry"]["rpe"][2]["trans_m"]["rmse"] == ev.odometry.rpe[2].trans.rmse
+    assert out["final"]["drift"]["percent"] == ev.final.drift.percent
+    assert out["loops_accepted"] == 3 and out["odometry_identical"] is False
+    assert (tmp_path / "p.png").stat().st_size > 1000
+    # text: one table, final and odometry side by side
+    res = runner.invoke(app, ["eval", str(run), "--rpe-delta", "2f", "--drift-align", "origin"])
+    assert res.exit_code == 0, res.output
+    lines = res.stdout.splitlines()
+    assert any(line.split()[-2:] == ["final", "odometry"] for line in lines)
+    ev2 = evaluate_run(run, rpe_deltas=["2f"], drift_alignment="origin")
+    (ate_line,) = [line for line in lines if line.startswith("ATE rmse [m]")]
+    assert ate_line.split()[-2:] == [f"{ev2.final.ate.rmse:.4f}", f"{ev2.odometry.ate.rmse:.4f}"]
+    (drift_line,) = [line for line in lines if line.startswith("drift [%]")]
+    assert drift_line.split()[-1] == f"{ev2.odometry.drift.percent:.3f}"
+    assert any(line.startswith("RPE 2 frames trans rmse [m]") for line in lines)
+
+
+def test_cli_eval_files_json_has_detail(files):
+    runner, app = _cli()
+    res = runner.invoke(app, ["eval", str(files[0]), str(files[1]), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    gt, est = read_tum(files[0]), read_tum(files[1])
+    assert {k: out[k] for k in evaluate(gt, est)} == evaluate(gt, est)
+    assert out["rpe"][1]["trans_m"]["rmse"] == rpe(gt, est, 1, "seconds")[0].rmse
+    assert out["rpe"][2]["trans_m"]["rmse"] == rpe(gt, est, 1, "metres")[0].rmse
+    res = runner.invoke(app, ["eval", str(files[0]), str(files[1]), "--correct-scale"])
+    assert res.exit_code == 0 and "alignment sim3" in res.stdout
+    assert f"rmse {ate(gt, est, correct_scale=True).rmse:.4f}" in res.stdout
+
+
+def test_cli_eval_argument_errors(tmp_path, files):
+    def _flat(text: str) -> str:  # rich wraps long error lines
+        return " ".join(text.split())
+
+    runner, app = _cli()
+    res = runner.invoke(app, ["eval", str(files[0])])
+    assert res.exit_code == 2 and "is not a folder" in _flat(res.output)
+    res = runner.invoke(app, ["eval", str(tmp_path), str(files[1])])
+    assert res.exit_code == 2 and "is a run folder" in _flat(res.output)
+    res = runner.invoke(app, ["eval", str(tmp_path)])
+    assert res.exit_code == 2 and "no trajectory.txt" in _flat(res.output)
+    res = runner.invoke(app, ["eval", str(files[0]), str(files[1]), "--rpe-delta", "x"])
+    assert res.exit_code == 2 and "cannot read RPE delta" in _flat(res.output)

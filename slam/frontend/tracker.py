@@ -24,12 +24,17 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Keyframe:
-    """A keyframe: its index, pose and ORB features with 3D points (camera frame)."""
+    """A keyframe: frame index, odometry pose and ORB features with 3D points (camera frame);
+    keyframes also keep their depth at tracking resolution (with its intrinsics ``K``) for
+    loop verification, and ``id``, their number in the run (0, 1, ...)."""
 
     index: int
     timestamp: float
     T_world_cam: np.ndarray
     features: FeatureSet
+    depth_m: np.ndarray | None = None
+    K: np.ndarray | None = None
+    id: int = -1
 
 
 @dataclass
@@ -123,7 +128,7 @@ class Tracker:
             T = np.eye(4)
             status = TrackingStatus(frame.index, "init", True)
             feats = self._features(frame)
-            self._add_keyframe(frame, T, feats, status)
+            self._add_keyframe(frame, T, feats, status, self._tracking_depth(frame.depth_m))
             st.T_world_prev = T
             st.prev_depth = self._tracking_depth(frame.depth_m)
             status.ms = (time.perf_counter() - t0) * 1e3
@@ -263,14 +268,28 @@ class Tracker:
             ):
                 if feats is None:
                     feats = self._features(frame)
-                self._add_keyframe(frame, T, feats, status)
+                self._add_keyframe(frame, T, feats, status, depth)
         status.ms = (time.perf_counter() - t0) * 1e3
         return T, status
 
     def _add_keyframe(
-        self, frame: Frame, T: np.ndarray, feats: FeatureSet | None, status: TrackingStatus
+        self,
+        frame: Frame,
+        T: np.ndarray,
+        feats: FeatureSet | None,
+        status: TrackingStatus,
+        depth: np.ndarray,
     ) -> None:
-        self.state.keyframes.append(
-            Keyframe(frame.index, frame.timestamp, T.copy(), feats or FeatureSet.empty())
+        kfs = self.state.keyframes
+        kfs.append(
+            Keyframe(
+                frame.index,
+                frame.timestamp,
+                T.copy(),
+                feats or FeatureSet.empty(),
+                depth,
+                scale_intrinsics(frame.K, self.cfg.downsample),
+                len(kfs),
+            )
         )
         status.keyframe = True

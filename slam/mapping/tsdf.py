@@ -42,14 +42,22 @@ def _tensor(a: np.ndarray, dtype=None) -> o3c.Tensor:
 class TSDFVolume:
     """A TSDF volume in world coordinates (metres)."""
 
-    def __init__(self, cfg: MappingConfig, with_color: bool = True) -> None:
+    def __init__(
+        self, cfg: MappingConfig, with_color: bool = True, block_count: int | None = None
+    ) -> None:
         self.cfg = cfg
         self.with_color = with_color and cfg.integrate_color
         names = ["tsdf", "weight"] + (["color"] if self.with_color else [])
         dtypes = [o3c.float32] * len(names)
         channels = [[1], [1]] + ([[3]] if self.with_color else [])
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
-            names, dtypes, channels, cfg.voxel_size_m, cfg.block_resolution, cfg.block_count, _CPU
+            names,
+            dtypes,
+            channels,
+            cfg.voxel_size_m,
+            cfg.block_resolution,
+            block_count or cfg.block_count,
+            _CPU,
         )
         self.n_integrated = 0
         self._last_blocks: o3c.Tensor | None = None
@@ -188,6 +196,19 @@ class TSDFVolume:
     def save(self, path: str | Path) -> None:
         """Save the voxel grid (``.npz``) for checkpointing."""
         self.vbg.save(str(path))
+
+    @classmethod
+    def load(
+        cls, path: str | Path, cfg: MappingConfig, with_color: bool = True, n_integrated: int = 1
+    ) -> TSDFVolume:
+        """A volume saved with :meth:`save` (``n_integrated``: frames fused into it)."""
+        vol = cls.__new__(cls)
+        vol.cfg = cfg
+        vol.with_color = with_color and cfg.integrate_color
+        vol.vbg = o3d.t.geometry.VoxelBlockGrid.load(str(path))
+        vol.n_integrated = n_integrated
+        vol._last_blocks = None
+        return vol
 
     @property
     def n_blocks(self) -> int:

@@ -1,0 +1,176 @@
+"""Geometric verification of a revisit candidate between two keyframes.
+
+ORB matches lifted to 3D, the tracking frontend's RANSAC (minimal 3-point Kabsch sets), then
+projective point-to-plane ICP between the two keyframes' depth images from the RANSAC pose.
+A candidate is accepted only when every check passes; the outcome says which one failed.
+Reused by relocalisation (same checks, a keyframe against the current frame).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+
+from slam.config import LoopConfig
+from slam.frontend.features import FeatureSet, match_descriptors
+from slam.frontend.icp import projective_icp, projective_overlap
+from slam.frontend.ransac import ransac_rigid
+from slam.geometry import inv_T, rotation_angle_deg, translation_norm
+
+log = logging.getLogger(__name__)
+
+ICP_ITERATIONS = [8, 6, 4]  # coarse ... fine; keyframes are farther apart than frames
+
+
+@dataclass
+class KeyframeView:
+    """What verification needs of a keyframe: ORB features with 3D points, the depth image the
+    features' intrinsics ``K`` refer to after scaling, and the tracking-resolution depth."""
+
+    features: FeatureSet
+    depth_m: np.ndarray  # tracking resolution
+    K: np.ndarray  # intrinsics of ``depth_m``
+
+
+@dataclass
+class Verification:
+    """Outcome of verifying ``query`` against ``candidate``. ``T_candidate_query`` maps query
+    camera points into the candidate camera; ``information`` (6x6, rotation first) is the
+    per-correspondence J^T J of the final alignment, expressed for the right-perturbation of
+    ``T_candidate_query`` (GTSAM's ``BetweenFactor`` convention)."""
+
+    accepted: bool
+    reason: str
+    matches: int = 0
+    inliers: int = 0
+    inlier_ratio: float = 0.0
+    icp_fitness: float = 0.0
+    overlap: float = 0.0
+    T_candidate_query: np.ndarray = field(default_factory=lambda: np.eye(4))
+    information: np.ndarray = field(default_factory=lambda: np.eye(6))
+
+    def summary(self) -> dict:
+        return {
+            "accepted": self.accepted,
+            "reason": self.reason,
+            "matches": self.matches,
+            "inliers": self.inliers,
+            "inlier_ratio": round(self.inlier_ratio, 4),
+            "icp_fitness": round(self.icp_fitness, 4),
+            "overlap": round(self.overlap, 4),
+            "T_match_query": np.round(self.T_candidate_query, 9).tolist(),
+        }
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """6x6 adjoint of an SE(3) transform for twists ordered (rotation, translation)."""
+    R, t = T[:3, :3], T[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    A = np.zeros((6, 6))
+    A[:3, :3] = R
+    A[3:, 3:] = R
+    A[3:, :3] = tx @ R
+    return A
+
+
+def registration_information(
+    source_depth_m: np.ndarray,
+    target_depth_m: np.ndarray,
+    K: np.ndarray,
+    T_target_source: np.ndarray,
+    threshold_m: float = 0.03,
+    depth_max_m: float = 4.0,
+) -> tuple[np.ndarray, int]:
+    """Per-correspondence information of a depth-image alignment: Open3D's J^T J of the
+    point-to-point residuals (rotation first, perturbation on the left in the target frame),
+    divided by the number of correspondences and moved to the right-perturbation of
+    ``T_target_source``. Its shape says which motions the overlap constrains (a single wall
+    leaves in-plane sliding free); callers scale it by 1/sigma^2. Returns (info, n)."""
+    info = o3d.t.pipelines.odometry.compute_odometry_information_matrix(
+        o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(source_depth_m, np.float32))),
+        o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(target_depth_m, np.float32))),
+        o3c.Tensor(np.ascontiguousarray(K, np.float64)),
+        o3c.Tensor(np.ascontiguousarray(T_target_source, np.float64)),
+        float(threshold_m),
+        1.0,
+        float(depth_max_m),
+    ).numpy()
+    n = int(round(info[3, 3]))  # translation block of point-to-point J^T J is n * I
+    if n < 10:
+        return np.eye(6) * 1e-6, n
+    A = adjoint(T_target_source)
+    return A.T @ (info / n) @ A, n
+
+
+class LoopVerifier:
+    """Accepts or rejects revisit candidates (RANSAC on ORB, then ICP on depth)."""
+
+    def __init__(self, cfg: LoopConfig, depth_max_m: float = 4.0, seed: int = 0) -> None:
+        self.cfg = cfg
+        self.depth_max_m = depth_max_m
+        self._rng = np.random.default_rng(seed)
+
+    def verify(self, query: KeyframeView, candidate: KeyframeView) -> Verification:
+        cfg = self.cfg
+        m = match_descriptors(query.features.descriptors, candidate.features.descriptors, cfg.ratio)
+        if len(m) < cfg.min_inliers:
+            return Verification(False, f"{len(m)} descriptor matches < {cfg.min_inliers}", len(m))
+        rs = ransac_rigid(
+            query.features.points_cam[m[:, 0]],
+            candidate.features.points_cam[m[:, 1]],
+            cfg.ransac_iterations,
+            cfg.ransac_threshold_m,
+            cfg.min_inliers,
+            rng=self._rng,
+        )
+        ratio = rs.n_inliers / len(m)
+        out = Verification(False, "", len(m), rs.n_inliers, ratio)
+        if not rs.success or rs.n_inliers < cfg.min_inliers:
+            out.reason = f"{rs.n_inliers} RANSAC inliers < {cfg.min_inliers}"
+            return out
+        if ratio < cfg.min_inlier_ratio:
+            out.reason = f"RANSAC inlier ratio {ratio:.2f} < {cfg.min_inlier_ratio}"
+            return out
+        icp = projective_icp(
+            query.depth_m,
+            candidate.depth_m,
+            query.K,
+            rs.T,
+            ICP_ITERATIONS,
+            self.depth_max_m,
+            max_correspondence_m=0.07,
+            huber_delta_m=0.05,
+        )
+        T = icp.T_target_source
+        out.icp_fitness = float(icp.fitness)
+        out.T_candidate_query = T
+        step = inv_T(rs.T) @ T
+        if (
+            translation_norm(step) > cfg.max_icp_correction_m
+            or rotation_angle_deg(step) > cfg.max_icp_correction_deg
+        ):
+            out.reason = (
+                f"ICP moved the RANSAC pose by {translation_norm(step):.3f} m / "
+                f"{rotation_angle_deg(step):.1f} deg (max {cfg.max_icp_correction_m} m / "
+                f"{cfg.max_icp_correction_deg} deg)"
+            )
+            return out
+        if icp.fitness < cfg.min_icp_fitness:
+            out.reason = f"ICP fitness {icp.fitness:.2f} < {cfg.min_icp_fitness}"
+            return out
+        out.overlap = projective_overlap(
+            query.depth_m, candidate.depth_m, query.K, T, cfg.overlap_threshold_m
+        )
+        if out.overlap < cfg.min_overlap:
+            out.reason = f"overlap {out.overlap:.2f} < {cfg.min_overlap}"
+            return out
+        out.information, _ = registration_information(
+            query.depth_m, candidate.depth_m, query.K, T, cfg.overlap_threshold_m, self.depth_max_m
+        )
+        out.accepted = True
+        out.reason = "accepted"
+        return out

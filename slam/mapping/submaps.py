@@ -1,0 +1,209 @@
+"""TSDF submaps: the map is a list of TSDF volumes, each fused in the frame of its anchor keyframe.
+
+Tracking works in the frontend's (odometry) world frame and only ever sees the active submap,
+so a loop correction never disturbs it. When poses are corrected, the global model is rebuilt by
+re-fusing every submap under its corrected anchor pose.
+
+Re-fusion method: each submap is ray-cast (depth + colour) from a subset of the viewpoints of
+the frames fused into it (every ``reintegration_stride``-th, at ``1/reintegration_downsample``
+resolution) and those renderings are integrated into a fresh volume at
+``T_world_anchor (corrected) @ T_anchor_view``. Chosen over re-integrating the raw frames
+because it needs neither the frames in memory nor the input again (a live sensor cannot be
+re-read), its cost is set by the number of views rather than frames (measured in
+docs/benchmarks.md), and the renderings carry the submap's already-averaged surface.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import tempfile
+import weakref
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from slam.config import MappingConfig
+from slam.frontend.pointcloud import scale_intrinsics
+from slam.geometry import inv_T
+from slam.mapping.tsdf import Rendering, TSDFVolume
+
+log = logging.getLogger(__name__)
+
+
+def _color_u8(r: Rendering) -> np.ndarray | None:
+    return None if r.color is None else np.clip(r.color * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+@dataclass
+class Submap:
+    """A TSDF volume in the frame of its anchor keyframe, with the viewpoints fused into it.
+    A finished submap may wait on disk (``volume`` None, ``path`` set)."""
+
+    id: int
+    anchor_kf: int
+    T_world_anchor: np.ndarray  # the anchor's odometry pose (frontend world frame)
+    volume: TSDFVolume | None
+    T_anchor_views: list[np.ndarray] = field(default_factory=list)  # every fused frame
+    path: Path | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.T_anchor_views)
+
+
+class SubmapMap:
+    """The frontend's model: ``integrate`` and ``raycast`` take ``T_world_cam`` in the odometry
+    frame and act on the active submap. A new submap starts seeded with the previous one's
+    surface as seen from its last ``submap_seed_views`` viewpoints (ray-cast, then fused), so
+    tracking never faces an empty model; the first ``submap_overlap_frames`` frames of a new
+    submap are fused into the previous one too, so neighbouring submaps overlap."""
+
+    def __init__(self, cfg: MappingConfig, with_color: bool = True) -> None:
+        self.cfg = cfg
+        self.with_color = with_color
+        self.submaps: list[Submap] = []
+        self._K: np.ndarray | None = None
+        self._size: tuple[int, int] | None = None
+        self._spill_dir: Path | None = None
+        if cfg.spill_submaps and cfg.submap_keyframes > 0:
+            self._spill_dir = Path(tempfile.mkdtemp(prefix="slam-submaps-"))
+            weakref.finalize(self, shutil.rmtree, self._spill_dir, True)
+
+    def volume(self, sm: Submap) -> TSDFVolume:
+        """The submap's volume, loaded from disk when it was spilled."""
+        if sm.volume is not None:
+            return sm.volume
+        assert sm.path is not None
+        return TSDFVolume.load(sm.path, self.cfg, self.with_color, max(sm.n_frames, 1))
+
+    def _spill(self, sm: Submap) -> None:
+        """Move a finished submap to disk: memory then holds the active submap(s) only."""
+        if self._spill_dir is None or sm.volume is None:
+            return
+        sm.path = self._spill_dir / f"submap_{sm.id:04d}.npz"
+        sm.volume.save(sm.path)
+        sm.volume = None
+        log.debug("submap %d spilled to %s", sm.id, sm.path)
+
+    # --- submap lifecycle
+    @property
+    def active(self) -> Submap:
+        return self.submaps[-1]
+
+    def start_submap(self, anchor_kf: int, T_world_anchor: np.ndarray) -> Submap:
+        block_count = self.cfg.block_count if not self.submaps else self.cfg.submap_block_count
+        if self.cfg.submap_keyframes <= 0:
+            block_count = self.cfg.block_count
+        sm = Submap(
+            len(self.submaps),
+            anchor_kf,
+            np.asarray(T_world_anchor, float).copy(),
+            TSDFVolume(self.cfg, self.with_color, block_count),
+        )
+        if self.submaps:
+            self._seed(sm, self.submaps[-1])
+        self.submaps.append(sm)
+        log.debug("submap %d anchored at keyframe %d", sm.id, anchor_kf)
+        return sm
+
+    def _seed(self, new: Submap, prev: Submap) -> None:
+        """Fuse ray-casts of ``prev`` from its last viewpoints into ``new`` (anchor frames
+        differ: both are odometry-frame poses, so the relative transform is exact)."""
+        if self._K is None or self._size is None or new.volume is None:
+            return
+        f = max(int(self.cfg.reintegration_downsample), 1)
+        K = scale_intrinsics(self._K, f)
+        w, h = self._size[0] // f, self._size[1] // f
+        T_new_prev = inv_T(new.T_world_anchor) @ prev.T_world_anchor
+        volume = self.volume(prev)
+        for T_prev_view in prev.T_anchor_views[-self.cfg.submap_seed_views :]:
+            r = volume.render(K, w, h, T_prev_view)
+            if (r.depth_m > 0).any():
+                new.volume.integrate(r.depth_m, _color_u8(r), K, T_new_prev @ T_prev_view)
+
+    def on_keyframe(self, kf_id: int, T_world_kf: np.ndarray) -> bool:
+        """Start a new submap at this keyframe when the active one has enough keyframes
+        (``submap_keyframes``; 0 = a single map). Returns True when a submap was started."""
+        n = self.cfg.submap_keyframes
+        if not self.submaps:
+            self.start_submap(kf_id, T_world_kf)
+            return True
+        if n > 0 and kf_id - self.active.anchor_kf >= n:
+            self.start_submap(kf_id, T_world_kf)
+            return True
+        return False
+
+    # --- the model interface used by tracking and fusion
+    def integrate(
+        self, depth_m: np.ndarray, color: np.ndarray | None, K: np.ndarray, T_world_cam: np.ndarray
+    ) -> None:
+        if not self.submaps:
+            self.start_submap(0, T_world_cam)
+        if self._K is None:
+            self._K, self._size = K.copy(), (depth_m.shape[1], depth_m.shape[0])
+        targets = [self.active]
+        overlap = len(self.submaps) > 1 and self.active.n_frames < self.cfg.submap_overlap_frames
+        if overlap:
+            targets.append(self.submaps[-2])
+        for sm in targets:
+            T_anchor_cam = inv_T(sm.T_world_anchor) @ T_world_cam
+            self.volume(sm).integrate(depth_m, color, K, T_anchor_cam)
+            sm.T_anchor_views.append(T_anchor_cam)
+        if overlap and self.active.n_frames >= self.cfg.submap_overlap_frames:
+            self._spill(self.submaps[-2])  # the previous submap is complete
+
+    def raycast(self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray, *args, **kw):
+        """Ray-cast the tracking submap from an odometry-frame pose (see TSDFVolume.raycast)."""
+        if not self.submaps:
+            return Rendering(np.zeros((height, width), np.float32), None, None)
+        sm = self.active
+        return self.volume(sm).raycast(
+            K, width, height, inv_T(sm.T_world_anchor) @ T_world_cam, *args, **kw
+        )
+
+    @property
+    def n_blocks(self) -> int:
+        """Blocks of the submaps held in memory."""
+        return sum(sm.volume.n_blocks for sm in self.submaps if sm.volume is not None)
+
+    # --- the corrected global model
+    def rebuild(self, T_world_anchors: dict[int, np.ndarray] | None = None) -> TSDFVolume:
+        """Re-fuse every submap into one volume, each under ``T_world_anchors[submap.id]``
+        (default: the anchors' odometry poses)."""
+        cfg = self.cfg
+        out = TSDFVolume(cfg, self.with_color)
+        if self._K is None or self._size is None:
+            return out
+        f = max(int(cfg.reintegration_downsample), 1)
+        K = scale_intrinsics(self._K, f)
+        w, h = self._size[0] // f, self._size[1] // f
+        stride = max(int(cfg.reintegration_stride), 1)
+        for sm in self.submaps:
+            T_world_anchor = (T_world_anchors or {}).get(sm.id, sm.T_world_anchor)
+            views = sm.T_anchor_views[::stride]
+            if sm.T_anchor_views and views[-1] is not sm.T_anchor_views[-1]:
+                views.append(sm.T_anchor_views[-1])
+            volume = self.volume(sm)
+            for T_anchor_view in views:
+                r = volume.render(K, w, h, T_anchor_view)
+                if (r.depth_m > 0).any():
+                    out.integrate(r.depth_m, _color_u8(r), K, T_world_anchor @ T_anchor_view)
+        log.info(
+            "re-fused %d submaps into a global model of %d blocks", len(self.submaps), out.n_blocks
+        )
+        return out
+
+    def extract_mesh(
+        self, T_world_anchors: dict[int, np.ndarray] | None = None
+    ) -> o3d.geometry.TriangleMesh:
+        """Marching cubes on the global model under the given anchor poses. A single submap is
+        meshed directly (and moved rigidly) instead of being re-fused."""
+        if len(self.submaps) == 1:
+            sm = self.submaps[0]
+            mesh = self.volume(sm).extract_mesh()
+            T = (T_world_anchors or {}).get(sm.id, sm.T_world_anchor)
+            return mesh.transform(T)
+        return self.rebuild(T_world_anchors).extract_mesh()

@@ -1,0 +1,50 @@
+"""Geometric verification of revisits on rendered synthetic views (exact relative poses)."""
+
+import numpy as np
+import pytest
+
+from slam.config import LoopConfig
+from slam.data.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
+from slam.frontend.features import OrbExtractor
+from slam.frontend.loop_verification import KeyframeView, LoopVerifier, adjoint
+from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
+
+CFG = SynthConfig(frames=300, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return build_scene(CFG)
+
+
+def view(scene, T_world_cam, seed=0) -> KeyframeView:
+    color, depth = render_frame(scene, T_world_cam, CFG, np.random.default_rng(seed))
+    K = CFG.calibration().K
+    return KeyframeView(OrbExtractor(1000).extract(color, depth, K), depth, K)
+
+
+def test_revisit_is_accepted_with_the_true_relative_pose(scene):
+    traj = make_trajectory(CFG)
+    T_a = traj.poses[10]
+    T_b = T_a @ exp_se3(np.array([0.02, -0.08, 0.03, 0.15, 0.05, -0.1]))  # ~5 deg, 19 cm away
+    res = LoopVerifier(LoopConfig()).verify(view(scene, T_b, 1), view(scene, T_a, 2))
+    assert res.accepted, res.reason
+    err = inv_T(inv_T(T_a) @ T_b) @ res.T_candidate_query
+    assert translation_norm(err) < 0.01 and rotation_angle_deg(err) < 0.5
+    assert res.information.shape == (6, 6) and np.all(np.linalg.eigvalsh(res.information) > 0)
+
+
+def test_unrelated_views_are_rejected_with_a_reason(scene):
+    traj = make_trajectory(CFG)
+    res = LoopVerifier(LoopConfig()).verify(
+        view(scene, traj.poses[0]), view(scene, traj.poses[150])
+    )
+    assert not res.accepted
+    assert res.reason and res.reason != "accepted"
+
+
+def test_adjoint_moves_a_left_perturbation_to_the_right():
+    T = exp_se3(np.array([0.3, -0.2, 0.1, 0.5, 1.0, -0.4]))
+    xi = np.array([0.01, 0.02, -0.01, 0.03, -0.02, 0.01])
+    # exp(xi) T == T exp(Ad(T^-1) xi)
+    np.testing.assert_allclose(exp_se3(xi) @ T, T @ exp_se3(adjoint(inv_T(T)) @ xi), atol=1e-12)
