@@ -51,6 +51,7 @@ class TrackingConfig:
     depth_max_m: float = 4.0
     max_correspondence_m: float = 0.07  # projective correspondences farther apart are rejected
     huber_delta_m: float = 0.05
+    coarse_correspondence_factor: float = 2.0  # both grow by this factor per coarser level
     min_fitness: float = 0.1  # ICP check: fraction of pixels with an ICP correspondence
     min_overlap: float = 0.3  # ICP check: fraction of pixels within inlier_threshold of the model
     inlier_threshold_m: float = 0.03
@@ -59,6 +60,8 @@ class TrackingConfig:
     max_model_correction_deg: float = 3.0
     large_motion_translation_m: float = 0.06  # predicted motion above this -> RANSAC seed
     large_motion_rotation_deg: float = 6.0
+    hypotheses: bool = True  # large motion, poor overlap: also try identity/velocity/RANSAC guesses
+    hypothesis_overlap: float = 0.75  # ... unless the first estimate already overlaps this well
     relocalisation_keyframes: int = 5  # RANSAC tries this many recent keyframes when needed
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
@@ -79,10 +82,10 @@ class MappingConfig:
     mesh_weight_threshold: float = 3.0
     # submaps: each fused in the frame of its anchor keyframe, re-fused under corrected anchors
     submap_keyframes: int = 10  # a new submap every this many keyframes (0: a single map)
-    submap_overlap_frames: int = 5  # frames fused into both the old and the new submap
-    submap_seed_views: int = 8  # a new submap starts with the old one seen from its last views
-    submap_block_count: int = 4000  # initial hash-map capacity of a submap, in blocks
-    reintegration_stride: int = 5  # re-fuse a submap from every n-th of its frames' viewpoints
+    submap_min_frames: int = 60  # ... and at least this many frames
+    submap_overlap_frames: int = 3  # frames fused into both the old and the new submap
+    submap_seed_views: int = 3  # a new submap starts with the old one seen from its last views
+    reintegration_stride: int = 10  # re-fuse a submap from every n-th of its frames' viewpoints
     reintegration_downsample: int = 2  # those views are ray-cast at 1/n resolution
     spill_submaps: bool = True  # finished submaps wait on disk (temporary folder), not in memory
 

@@ -8,8 +8,9 @@ import json
 import logging
 import resource
 import time
-from collections import Counter
-from collections.abc import Callable
+from collections import Counter, deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,22 @@ def _frame_indices(sequence: Sequence, cfg: SlamConfig) -> list[int]:
     return idx
 
 
+def _prefetch(
+    sequence: Sequence, indices: list[int], ahead: int = 2
+) -> Iterator[tuple[int, Future]]:
+    """(index, future frame) in order, reading up to ``ahead`` frames in a background thread
+    (image decoding releases the GIL, so it overlaps with tracking)."""
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam-read") as pool:
+        pending: deque[tuple[int, Future]] = deque()
+        todo = iter(indices)
+        for i in todo:
+            pending.append((i, pool.submit(sequence.__getitem__, i)))
+            if len(pending) > ahead:
+                yield pending.popleft()
+        while pending:
+            yield pending.popleft()
+
+
 def run(
     sequence: Sequence,
     config: SlamConfig | None = None,
@@ -84,10 +101,10 @@ def run(
     skipped: list[dict[str, Any]] = []
     stage_ms: dict[str, float] = {"load": 0.0, "tracking": 0.0, "integration": 0.0, "loop": 0.0}
     t_start = time.perf_counter()
-    for n_done, i in enumerate(indices, 1):
+    for n_done, (i, future) in enumerate(_prefetch(sequence, indices), 1):
         t0 = time.perf_counter()
         try:
-            frame = sequence[i]
+            frame = future.result()
         except FrameReadError as exc:
             log.error("skipping frame %d: %s", i, exc)
             skipped.append({"index": i, "error": str(exc)})

@@ -34,7 +34,6 @@ def test_cabinet_keyframes_end_to_end():
     assert m["frames"] == 58
     # large inter-frame motion: RANSAC must seed ICP on a good share of the frames
     assert m["tracking_paths"].get("ransac+icp", 0) >= 10
-    assert m["tracking_failures"] <= 5
-    # guard: better than Open3D's dense SLAM here (0.53 m, docs/benchmarks.md); runs measured
-    # 0.23-0.43 m. The target, 0.10 m, is not met yet.
-    assert m["ate_rmse_m"] < 0.53, m["ate_rmse_m"]
+    # tracked end to end (the target: ATE <= 0.10 m); measured 0.065 m in 3 runs
+    assert m["tracking_failures"] == 0
+    assert m["ate_rmse_m"] <= 0.10, m["ate_rmse_m"]

@@ -10,6 +10,8 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
+from slam.frontend.pointcloud import depth_pyramid, scale_intrinsics
+
 _odom = o3d.t.pipelines.odometry
 log = logging.getLogger(__name__)
 
@@ -32,18 +34,42 @@ def projective_icp(
     depth_max_m: float = 4.0,
     max_correspondence_m: float = 0.07,
     huber_delta_m: float = 0.05,
+    coarse_factor: float = 1.0,
 ) -> IcpResult:
     """Align a source depth image to a target depth image (e.g. the model ray-cast).
 
     ``iterations`` lists iterations per pyramid level, coarse to fine (its length is the number
-    of levels). Target normals come from the target depth's vertex map.
+    of levels). Target normals come from the target depth's vertex map. With ``coarse_factor``
+    > 1 the correspondence distance and Huber delta grow by that factor per level above the
+    finest, so coarse levels can pull in larger motions.
     """
+    levels = len(iterations)
+    if coarse_factor != 1.0 and levels > 1:
+        src_pyr = depth_pyramid(source_depth_m, levels)
+        tgt_pyr = depth_pyramid(target_depth_m, levels)
+        T = np.asarray(init_T_target_source, float)
+        for level in reversed(range(levels)):
+            scale = coarse_factor**level
+            res = projective_icp(
+                src_pyr[level],
+                tgt_pyr[level],
+                scale_intrinsics(K, 2**level),
+                T,
+                [iterations[levels - 1 - level]],
+                depth_max_m,
+                max_correspondence_m * scale,
+                huber_delta_m * scale,
+            )
+            if res.fitness == 0.0:
+                return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)
+            T = res.T_target_source
+        return res
     src_d = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(source_depth_m, np.float32)))
     tgt_d = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(target_depth_m, np.float32)))
     source = o3d.t.geometry.RGBDImage(src_d, src_d)
     target = o3d.t.geometry.RGBDImage(tgt_d, tgt_d)
-    # Open3D indexes criteria finest level first
-    criteria = [_odom.OdometryConvergenceCriteria(int(n)) for n in reversed(iterations)]
+    # Open3D takes the criteria coarsest level first, like ``iterations`` (checked by timing)
+    criteria = [_odom.OdometryConvergenceCriteria(int(n)) for n in iterations]
     try:
         result = _odom.rgbd_odometry_multi_scale(
             source,

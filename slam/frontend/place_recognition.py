@@ -28,14 +28,19 @@ def _nearest_words(descriptors: np.ndarray, words: np.ndarray) -> np.ndarray:
 
 def _kmeanspp(desc: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
     """k-means++ seeding with Hamming distance: indices of ``k`` well-spread descriptors."""
+    words = np.ascontiguousarray(desc).view(np.uint64)  # 4 x 64 bits: fast popcounts
+
+    def sq_dist(i: int) -> np.ndarray:
+        return np.bitwise_count(words ^ words[i]).sum(axis=1).astype(np.float64) ** 2
+
     chosen = [int(rng.integers(len(desc)))]
-    d2 = np.bitwise_count(desc ^ desc[chosen[0]]).sum(axis=1).astype(np.float64) ** 2
+    d2 = sq_dist(chosen[0])
     for _ in range(1, k):
         total = d2.sum()
         i = int(np.searchsorted(np.cumsum(d2), rng.random() * total)) if total > 0 else 0
         i = min(i, len(desc) - 1)
         chosen.append(i)
-        d2 = np.minimum(d2, np.bitwise_count(desc ^ desc[i]).sum(axis=1).astype(np.float64) ** 2)
+        d2 = np.minimum(d2, sq_dist(i))
     return np.array(chosen)
 
 

@@ -159,6 +159,7 @@ class Tracker:
                 cfg.depth_max_m,
                 cfg.max_correspondence_m,
                 cfg.huber_delta_m,
+                cfg.coarse_correspondence_factor,
             )
 
         def run_icp(
@@ -202,6 +203,20 @@ class Tracker:
                     return kf.T_world_cam @ res.T  # T_world_cur
             return None
 
+        def attempt(T_prev_cur: np.ndarray, trusted: bool) -> tuple[np.ndarray, IcpResult, float]:
+            """Frame-to-frame ICP from a guess of ``T_prev_cur`` (when enabled), then
+            frame-to-model ICP."""
+            if cfg.frame_to_frame and st.prev_depth is not None:
+                f2f = icp_against(st.prev_depth, T_prev_cur)
+                status.f2f_fitness = round(float(f2f.fitness), 4)
+                if f2f.fitness >= cfg.min_fitness and (
+                    translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source)
+                    <= cfg.max_step_translation_m
+                ):
+                    T_prev_cur = f2f.T_target_source
+                    trusted = True
+            return run_icp(T_prev @ T_prev_cur, trusted)
+
         # 1. the guess: RANSAC when the predicted motion is large, then frame-to-frame ICP
         #    against the previous frame from that guess (or from constant velocity)
         color_ok = self.use_color and frame.color is not None
@@ -213,17 +228,8 @@ class Tracker:
                 T_prev_cur = inv_T(T_prev) @ g
                 status.path = "ransac+icp"
                 trusted = True
-        if cfg.frame_to_frame and st.prev_depth is not None:
-            f2f = icp_against(st.prev_depth, T_prev_cur)
-            status.f2f_fitness = round(float(f2f.fitness), 4)
-            if f2f.fitness >= cfg.min_fitness and (
-                translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source)
-                <= cfg.max_step_translation_m
-            ):
-                T_prev_cur = f2f.T_target_source
-                trusted = True
         # 2. frame-to-model ICP from the guess; RANSAC rescue when the check fails
-        T, icp, score = run_icp(T_prev @ T_prev_cur, trusted)
+        T, icp, score = attempt(T_prev_cur, trusted)
         ok = score >= cfg.min_overlap and icp.fitness >= cfg.min_fitness
         if not ok and color_ok and ransac is None:
             g = ransac_guess()
@@ -233,6 +239,14 @@ class Tracker:
                     T, icp, score = T2, icp2, score2
                     status.path = "ransac+icp"
                 ok = score >= cfg.min_overlap and icp.fitness >= cfg.min_fitness
+        # 3. under large motion or failure, try other initial guesses; keep the best overlap
+        if cfg.hypotheses and (large or not ok) and score < cfg.hypothesis_overlap:
+            for name, guess in self._hypotheses(frame, feats, T_prev, velocity):
+                T2, icp2, score2 = attempt(guess, True)
+                if score2 > score and icp2.fitness >= cfg.min_fitness:
+                    T, icp, score = T2, icp2, score2
+                    status.path = name
+            ok = score >= cfg.min_overlap and icp.fitness >= cfg.min_fitness
         status.icp_fitness = float(icp.fitness)
         status.icp_rmse_m = float(icp.inlier_rmse)
         status.overlap = round(score, 4)
@@ -271,6 +285,28 @@ class Tracker:
                 self._add_keyframe(frame, T, feats, status, depth)
         status.ms = (time.perf_counter() - t0) * 1e3
         return T, status
+
+    def _hypotheses(
+        self, frame: Frame, feats: FeatureSet | None, T_prev: np.ndarray, velocity: np.ndarray
+    ) -> list[tuple[str, np.ndarray]]:
+        """Alternative guesses of ``T_prev_cur``: no motion, constant velocity, and the RANSAC
+        pose with the most inliers against the previous frame and the recent keyframes."""
+        out = [("icp", np.eye(4)), ("icp", velocity)]
+        if feats is None and self.use_color and frame.color is not None:
+            feats = self._features(frame)
+        if feats is not None and len(feats) > 0:
+            st = self.state
+            cands = ([st.prev_features] if st.prev_features else []) + list(
+                reversed(st.keyframes[-self.cfg.relocalisation_keyframes :])
+            )
+            best: tuple[int, np.ndarray] | None = None
+            for kf in cands:
+                res, _ = self.ransac_to_keyframe(feats, kf)
+                if res.success and (best is None or res.n_inliers > best[0]):
+                    best = (res.n_inliers, inv_T(T_prev) @ kf.T_world_cam @ res.T)
+            if best is not None:
+                out.append(("ransac+icp", best[1]))
+        return out
 
     def _add_keyframe(
         self,

@@ -19,6 +19,7 @@ import logging
 import shutil
 import tempfile
 import weakref
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +32,17 @@ from slam.geometry import inv_T
 from slam.mapping.tsdf import Rendering, TSDFVolume
 
 log = logging.getLogger(__name__)
+
+
+def _write(sm: Submap, path: Path) -> None:
+    assert sm.volume is not None
+    sm.volume.save(path)
+    sm.volume = None  # the file now holds it; free the memory
+
+
+def _cleanup(writer: ThreadPoolExecutor, folder: Path) -> None:
+    writer.shutdown(wait=True)
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 def _color_u8(r: Rendering) -> np.ndarray | None:
@@ -48,6 +60,7 @@ class Submap:
     volume: TSDFVolume | None
     T_anchor_views: list[np.ndarray] = field(default_factory=list)  # every fused frame
     path: Path | None = None
+    saving: Future | None = None  # the background write to ``path``, while it runs
 
     @property
     def n_frames(self) -> int:
@@ -68,25 +81,37 @@ class SubmapMap:
         self._K: np.ndarray | None = None
         self._size: tuple[int, int] | None = None
         self._spill_dir: Path | None = None
+        self._writer: ThreadPoolExecutor | None = None
         if cfg.spill_submaps and cfg.submap_keyframes > 0:
             self._spill_dir = Path(tempfile.mkdtemp(prefix="slam-submaps-"))
-            weakref.finalize(self, shutil.rmtree, self._spill_dir, True)
+            self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam-spill")
+            weakref.finalize(self, _cleanup, self._writer, self._spill_dir)
 
     def volume(self, sm: Submap) -> TSDFVolume:
         """The submap's volume, loaded from disk when it was spilled."""
+        if sm.saving is not None:
+            sm.saving.result()  # the write must be complete before reading it back
+            sm.saving = None
         if sm.volume is not None:
             return sm.volume
         assert sm.path is not None
         return TSDFVolume.load(sm.path, self.cfg, self.with_color, max(sm.n_frames, 1))
 
+    def flush(self) -> None:
+        """Wait until every submap being spilled is on disk."""
+        for sm in self.submaps:
+            if sm.saving is not None:
+                sm.saving.result()
+                sm.saving = None
+
     def _spill(self, sm: Submap) -> None:
-        """Move a finished submap to disk: memory then holds the active submap(s) only."""
-        if self._spill_dir is None or sm.volume is None:
+        """Move a finished submap to disk (written by a background thread, off the tracking
+        loop): memory then holds the active submap only."""
+        if self._writer is None or self._spill_dir is None or sm.volume is None:
             return
         sm.path = self._spill_dir / f"submap_{sm.id:04d}.npz"
-        sm.volume.save(sm.path)
-        sm.volume = None
-        log.debug("submap %d spilled to %s", sm.id, sm.path)
+        sm.saving = self._writer.submit(_write, sm, sm.path)
+        log.debug("submap %d spilling to %s", sm.id, sm.path)
 
     # --- submap lifecycle
     @property
@@ -94,14 +119,11 @@ class SubmapMap:
         return self.submaps[-1]
 
     def start_submap(self, anchor_kf: int, T_world_anchor: np.ndarray) -> Submap:
-        block_count = self.cfg.block_count if not self.submaps else self.cfg.submap_block_count
-        if self.cfg.submap_keyframes <= 0:
-            block_count = self.cfg.block_count
         sm = Submap(
             len(self.submaps),
             anchor_kf,
             np.asarray(T_world_anchor, float).copy(),
-            TSDFVolume(self.cfg, self.with_color, block_count),
+            TSDFVolume(self.cfg, self.with_color),
         )
         if self.submaps:
             self._seed(sm, self.submaps[-1])
@@ -125,13 +147,19 @@ class SubmapMap:
                 new.volume.integrate(r.depth_m, _color_u8(r), K, T_new_prev @ T_prev_view)
 
     def on_keyframe(self, kf_id: int, T_world_kf: np.ndarray) -> bool:
-        """Start a new submap at this keyframe when the active one has enough keyframes
-        (``submap_keyframes``; 0 = a single map). Returns True when a submap was started."""
+        """Start a new submap at this keyframe when the active one has ``submap_keyframes``
+        keyframes (0 = a single map) and ``submap_min_frames`` frames (with large motion every
+        frame is a keyframe, and a submap of a few frames is too thin a model to track
+        against). Returns True when a submap was started."""
         n = self.cfg.submap_keyframes
         if not self.submaps:
             self.start_submap(kf_id, T_world_kf)
             return True
-        if n > 0 and kf_id - self.active.anchor_kf >= n:
+        if (
+            n > 0
+            and kf_id - self.active.anchor_kf >= n
+            and self.active.n_frames >= self.cfg.submap_min_frames
+        ):
             self.start_submap(kf_id, T_world_kf)
             return True
         return False

@@ -42,9 +42,7 @@ def _tensor(a: np.ndarray, dtype=None) -> o3c.Tensor:
 class TSDFVolume:
     """A TSDF volume in world coordinates (metres)."""
 
-    def __init__(
-        self, cfg: MappingConfig, with_color: bool = True, block_count: int | None = None
-    ) -> None:
+    def __init__(self, cfg: MappingConfig, with_color: bool = True) -> None:
         self.cfg = cfg
         self.with_color = with_color and cfg.integrate_color
         names = ["tsdf", "weight"] + (["color"] if self.with_color else [])
@@ -56,7 +54,7 @@ class TSDFVolume:
             channels,
             cfg.voxel_size_m,
             cfg.block_resolution,
-            block_count or cfg.block_count,
+            cfg.block_count,
             _CPU,
         )
         self.n_integrated = 0

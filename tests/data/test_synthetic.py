@@ -340,3 +340,18 @@ def test_config_validation(tmp_path: Path):
         make_trajectory(SynthConfig(frames=0))
     with pytest.raises(CalibrationError):
         generate_sequence(tmp_path / "x", SynthConfig(frames=2, fx=-1.0))
+
+
+def test_drift_bias_is_a_radial_depth_distortion(small_scene):
+    """drift_bias scales depth by 1 + b * r^2 (r: normalised image radius); colour and ground
+    truth are untouched."""
+    cfg, scene, traj = small_scene
+    b = 0.05
+    biased = dataclasses.replace(cfg, drift_bias=b)
+    color0, depth0 = render_frame(scene, traj.poses[0], cfg, None)
+    color1, depth1 = render_frame(scene, traj.poses[0], biased, None)
+    np.testing.assert_array_equal(color0, color1)
+    v, u = np.nonzero((depth0 > 0) & (depth1 > 0))
+    r2 = ((u - cfg.cx) / cfg.fx) ** 2 + ((v - cfg.cy) / cfg.fy) ** 2
+    np.testing.assert_allclose(depth1[v, u], depth0[v, u] * (1 + b * r2), rtol=1e-5)
+    assert (depth1[v, u] / depth0[v, u]).max() > 1 + 0.5 * b * r2.max()

@@ -39,7 +39,9 @@ def _distance_to_sphere(mesh: o3d.geometry.TriangleMesh) -> np.ndarray:
 
 
 def test_submaps_are_anchored_and_overlap():
-    cfg = MappingConfig(submap_keyframes=2, submap_overlap_frames=2, reintegration_downsample=1)
+    cfg = MappingConfig(
+        submap_keyframes=2, submap_min_frames=4, submap_overlap_frames=2, reintegration_downsample=1
+    )
     model, _ = _fuse(cfg)
     assert len(model.submaps) == 3
     assert [sm.anchor_kf for sm in model.submaps] == [0, 2, 4]
@@ -49,12 +51,15 @@ def test_submaps_are_anchored_and_overlap():
     sm = model.submaps[1]
     np.testing.assert_allclose(sm.T_anchor_views[0], np.eye(4), atol=1e-12)
     # finished submaps wait on disk; only the active one is in memory
+    model.flush()
     assert [s.volume is None for s in model.submaps] == [True, True, False]
     assert all(s.path.is_file() for s in model.submaps[:2])
 
 
 def test_refused_global_model_lies_on_the_surface():
-    cfg = MappingConfig(submap_keyframes=2, submap_overlap_frames=2, reintegration_stride=2)
+    cfg = MappingConfig(
+        submap_keyframes=2, submap_min_frames=4, submap_overlap_frames=2, reintegration_stride=2
+    )
     model, _ = _fuse(cfg)
     d = _distance_to_sphere(model.extract_mesh())
     assert np.median(d) < 0.5 * cfg.voxel_size_m, np.median(d)
@@ -63,7 +68,9 @@ def test_refused_global_model_lies_on_the_surface():
 
 def test_refusion_follows_corrected_anchors():
     """Moving every anchor by the same rigid correction moves the whole mesh with it."""
-    cfg = MappingConfig(submap_keyframes=2, submap_overlap_frames=2, reintegration_stride=2)
+    cfg = MappingConfig(
+        submap_keyframes=2, submap_min_frames=4, submap_overlap_frames=2, reintegration_stride=2
+    )
     model, _ = _fuse(cfg)
     C = exp_se3(np.array([0.05, -0.02, 0.1, 0.3, -0.1, 0.2]))
     anchors = {sm.id: C @ sm.T_world_anchor for sm in model.submaps}
@@ -73,7 +80,9 @@ def test_refusion_follows_corrected_anchors():
 
 
 def test_spilled_and_in_memory_submaps_give_the_same_mesh():
-    kw = dict(submap_keyframes=2, submap_overlap_frames=2, reintegration_stride=2)
+    kw = dict(
+        submap_keyframes=2, submap_min_frames=4, submap_overlap_frames=2, reintegration_stride=2
+    )
     spilled, _ = _fuse(MappingConfig(**kw))
     kept, _ = _fuse(MappingConfig(**kw, spill_submaps=False))
     assert all(s.volume is not None for s in kept.submaps)
