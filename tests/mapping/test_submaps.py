@@ -86,9 +86,11 @@ def test_spilled_and_in_memory_submaps_give_the_same_mesh():
     spilled, _ = _fuse(MappingConfig(**kw))
     kept, _ = _fuse(MappingConfig(**kw, spill_submaps=False))
     assert all(s.volume is not None for s in kept.submaps)
-    a = np.asarray(spilled.extract_mesh().vertices)
-    b = np.asarray(kept.extract_mesh().vertices)
-    assert abs(len(a) - len(b)) <= 0.001 * len(b)
+    a, b = spilled.extract_mesh(), kept.extract_mesh()
+    # Open3D's parallel kernels are not bit-reproducible run to run, so compare the surfaces
+    assert abs(len(a.vertices) - len(b.vertices)) <= 0.02 * len(b.vertices)
+    assert np.median(_distance_to_sphere(a)) < 0.5 * 0.01
+    assert abs(np.mean(_distance_to_sphere(a)) - np.mean(_distance_to_sphere(b))) < 0.001
 
 
 def test_single_map_when_submaps_are_disabled():
