@@ -87,12 +87,12 @@ def run(
         _fail(exc)
         return
     m = result.metrics
-    console.print(
-        f"[green]wrote[/] {run_dir}: trajectory.txt, odometry.txt, mesh.ply, metrics.json"
-    )
+    files = ", ".join(sorted(p.name for p in run_dir.iterdir() if p.is_file()))
+    console.print(f"[green]wrote[/] {run_dir}: {files}")
     line = f"{m['frames']} frames, {m['fps']:.1f} fps, {m['tracking_failures']} tracking failures"
+    line += f", {m['loops_accepted']} loops closed"
     if "ate_rmse_m" in m:
-        line += f", ATE RMSE {m['ate_rmse_m']:.4f} m"
+        line += f", ATE RMSE {m['ate_rmse_m']:.4f} m (odometry {m['ate_rmse_odometry_m']:.4f} m)"
     typer.echo(line)
 
 
