@@ -43,8 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from slam.config import read_yaml
 from slam.errors import ConfigError, SlamError
 from slam.trajectory import atomic_write_text
 
@@ -212,12 +211,7 @@ def suite_from_dict(data: Any, base_dir: str | Path = ".", name: str = "suite") 
 def load_suite(path: str | Path) -> Suite:
     """Read a suite YAML file (see the module docstring)."""
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the suite: {exc}") from exc
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: invalid YAML: {exc}") from exc
+    data = read_yaml(path, "the suite")
     return suite_from_dict(data, path.resolve().parent, name=path.stem)
 
 
@@ -250,13 +244,7 @@ def _config_dict(suite: Suite, cfg: dict[str, Any] | str) -> dict[str, Any]:
 
     if isinstance(cfg, str):
         path = Path(_resolve(suite.base_dir, cfg))
-        try:
-            data = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read config: {exc}") from exc
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: invalid YAML: {exc}") from exc
-        data = data or {}
+        data = read_yaml(path) or {}
         where = f"{path}: "
     else:
         data, where = cfg, ""

@@ -213,17 +213,23 @@ def config_from_dict(data: dict[str, Any] | None) -> SlamConfig:
     return _build(SlamConfig, data or {}, "")
 
 
+def read_yaml(path: str | Path, what: str = "config") -> Any:
+    """Parse a YAML file; an unreadable file or invalid YAML is a :class:`ConfigError`."""
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read {what}: {exc}") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: invalid YAML: {exc}") from exc
+
+
 def load_config(path: str | Path | None) -> SlamConfig:
     """Default config, overridden by the YAML file at ``path`` when given."""
     if path is None:
         return SlamConfig()
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config: {exc}") from exc
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: invalid YAML: {exc}") from exc
+    data = read_yaml(path)
     try:
         return config_from_dict(data)
     except ConfigError as exc:

@@ -128,9 +128,9 @@ class Tracker:
             T = np.eye(4)
             status = TrackingStatus(frame.index, "init", True)
             feats = self._features(frame)
-            self._add_keyframe(frame, T, feats, status, self._tracking_depth(frame.depth_m))
-            st.T_world_prev = T
             st.prev_depth = self._tracking_depth(frame.depth_m)
+            self._add_keyframe(frame, T, feats, status, st.prev_depth)
+            st.T_world_prev = T
             status.ms = (time.perf_counter() - t0) * 1e3
             return T, status
 
@@ -190,10 +190,7 @@ class Tracker:
                 feats = self._features(frame)
             if feats is None:
                 return None
-            candidates = ([st.prev_features] if st.prev_features else []) + list(
-                reversed(st.keyframes[-cfg.relocalisation_keyframes :])
-            )
-            for kf in candidates:
+            for kf in self._ransac_candidates():
                 res, n_matches = self.ransac_to_keyframe(feats, kf)
                 if ransac is None or res.n_inliers > ransac.n_inliers:
                     ransac = res
@@ -286,6 +283,14 @@ class Tracker:
         status.ms = (time.perf_counter() - t0) * 1e3
         return T, status
 
+    def _ransac_candidates(self) -> list[Keyframe]:
+        """What RANSAC tries against: the previous frame, then the recent keyframes (newest
+        first)."""
+        st = self.state
+        return ([st.prev_features] if st.prev_features else []) + list(
+            reversed(st.keyframes[-self.cfg.relocalisation_keyframes :])
+        )
+
     def _hypotheses(
         self, frame: Frame, feats: FeatureSet | None, T_prev: np.ndarray, velocity: np.ndarray
     ) -> list[tuple[str, np.ndarray]]:
@@ -295,12 +300,8 @@ class Tracker:
         if feats is None and self.use_color and frame.color is not None:
             feats = self._features(frame)
         if feats is not None and len(feats) > 0:
-            st = self.state
-            cands = ([st.prev_features] if st.prev_features else []) + list(
-                reversed(st.keyframes[-self.cfg.relocalisation_keyframes :])
-            )
             best: tuple[int, np.ndarray] | None = None
-            for kf in cands:
+            for kf in self._ransac_candidates():
                 res, _ = self.ransac_to_keyframe(feats, kf)
                 if res.success and (best is None or res.n_inliers > best[0]):
                     best = (res.n_inliers, inv_T(T_prev) @ kf.T_world_cam @ res.T)
