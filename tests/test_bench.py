@@ -133,6 +133,19 @@ def test_tables_agree(local):
     assert "| missing | fast | failed |" in md
 
 
+#: Run-to-run spread of one pipeline run to the next on these 5-8 frame sequences: Open3D's
+#: parallel kernels are not bit-reproducible and a frame-level threshold (e.g. whether a model
+#: correction is trusted) can flip between runs; measured on the 8-frame demo stand-in, RPE
+#: rotation came out 0.033 deg in 1 of 10 runs and 0.074-0.078 deg in the others.
+RUN_TO_RUN = {
+    "ate_rmse_m": 2e-3,
+    "ate_rmse_odometry_m": 2e-3,
+    "rpe_trans_rmse_m": 2e-3,
+    "rpe_rot_rmse_deg": 0.06,
+    "drift_percent": 2.0,
+}
+
+
 def _ray():
     try:
         import ray
@@ -148,8 +161,7 @@ def _ray():
 def test_ray_table_equals_local_table(local, suite_dict, tmp_path):
     """The same suite as Ray tasks on a local Ray instance gives the same table.
 
-    Accuracy columns agree to within the pipeline's run-to-run jitter (two runs of the same
-    sequence in two processes differ by ~1e-6 m, from Open3D's parallel TSDF/ray-casting); counts
+    Accuracy columns agree to within the pipeline's run-to-run spread (``RUN_TO_RUN``); counts
     and errors agree exactly. Timing and memory columns are machine load, not compared.
     """
     ray = _ray()
@@ -177,7 +189,10 @@ def test_ray_table_equals_local_table(local, suite_dict, tmp_path):
         for k in ("frames", "loops_accepted", "tracking_failures"):
             assert got[k] == want[k], k
         for k in set(ACCURACY_COLUMNS) - {"frames", "loops_accepted", "tracking_failures"}:
-            assert got[k] == pytest.approx(want[k], rel=0.05, abs=2e-4), (got["sequence"], k)
+            assert got[k] == pytest.approx(want[k], rel=0.05, abs=RUN_TO_RUN[k]), (
+                got["sequence"],
+                k,
+            )
         assert got["fps"] > 0 and got["peak_rss_mb"] > 100
 
 
