@@ -25,9 +25,12 @@ class IcpResult:
     inlier_rmse: float  # point-to-plane RMSE of the correspondences, metres
 
 
+Depth = np.ndarray | list[np.ndarray]  # a depth image, or its pyramid (finest first)
+
+
 def projective_icp(
-    source_depth_m: np.ndarray,
-    target_depth_m: np.ndarray,
+    source_depth_m: Depth,
+    target_depth_m: Depth,
     K: np.ndarray,
     init_T_target_source: np.ndarray,
     iterations: list[int],
@@ -41,12 +44,14 @@ def projective_icp(
     ``iterations`` lists iterations per pyramid level, coarse to fine (its length is the number
     of levels). Target normals come from the target depth's vertex map. With ``coarse_factor``
     > 1 the correspondence distance and Huber delta grow by that factor per level above the
-    finest, so coarse levels can pull in larger motions.
+    finest, so coarse levels can pull in larger motions. Either depth may be given as its
+    :func:`depth_pyramid` (at least ``len(iterations)`` levels), so a caller aligning one image
+    several times builds it once.
     """
     levels = len(iterations)
     if coarse_factor != 1.0 and levels > 1:
-        src_pyr = depth_pyramid(source_depth_m, levels)
-        tgt_pyr = depth_pyramid(target_depth_m, levels)
+        src_pyr = _pyramid(source_depth_m, levels)
+        tgt_pyr = _pyramid(target_depth_m, levels)
         T = np.asarray(init_T_target_source, float)
         for level in reversed(range(levels)):
             scale = coarse_factor**level
@@ -64,6 +69,8 @@ def projective_icp(
                 return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)
             T = res.T_target_source
         return res
+    source_depth_m = source_depth_m[0] if isinstance(source_depth_m, list) else source_depth_m
+    target_depth_m = target_depth_m[0] if isinstance(target_depth_m, list) else target_depth_m
     src_d = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(source_depth_m, np.float32)))
     tgt_d = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(target_depth_m, np.float32)))
     source = o3d.t.geometry.RGBDImage(src_d, src_d)
@@ -88,6 +95,14 @@ def projective_icp(
     return IcpResult(
         result.transformation.numpy().astype(float), result.fitness, result.inlier_rmse
     )
+
+
+def _pyramid(depth: Depth, levels: int) -> list[np.ndarray]:
+    if isinstance(depth, list):
+        if len(depth) < levels:
+            raise ValueError(f"a depth pyramid of {len(depth)} levels; ICP needs {levels}")
+        return depth
+    return depth_pyramid(depth, levels)
 
 
 def projective_overlap(

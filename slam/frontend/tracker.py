@@ -14,7 +14,7 @@ from slam.data.base import Frame
 from slam.errors import ConfigError
 from slam.frontend.features import FeatureSet, OrbExtractor, match_descriptors
 from slam.frontend.icp import IcpResult, projective_icp, projective_overlap
-from slam.frontend.pointcloud import downsample_depth, scale_intrinsics
+from slam.frontend.pointcloud import depth_pyramid, downsample_depth, scale_intrinsics
 from slam.frontend.ransac import RansacResult, ransac_rigid
 from slam.geometry import inv_T, orthonormalize, rotation_angle_deg, translation_norm
 from slam.mapping.tsdf import TSDFVolume
@@ -70,6 +70,7 @@ class TrackerState:
     T_world_prev: np.ndarray | None = None
     prev_features: Keyframe | None = None  # the previous frame's features, when it computed them
     prev_depth: np.ndarray | None = None  # the previous frame's depth at tracking resolution
+    prev_pyramid: list[np.ndarray] | None = None  # ... and its ICP pyramid (not saved)
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
 
@@ -149,9 +150,12 @@ class Tracker:
         ransac: RansacResult | None = None
         status = TrackingStatus(frame.index, "icp", False)
 
-        def icp_against(target_depth: np.ndarray, init: np.ndarray) -> IcpResult:
+        levels = len(cfg.iterations)
+        depth_pyr = depth_pyramid(depth, levels)  # built once: every ICP of this frame uses it
+
+        def icp_against(target_depth: np.ndarray | list[np.ndarray], init: np.ndarray) -> IcpResult:
             return projective_icp(
-                depth,
+                depth_pyr,
                 target_depth,
                 K_track,
                 init,
@@ -204,7 +208,8 @@ class Tracker:
             """Frame-to-frame ICP from a guess of ``T_prev_cur`` (when enabled), then
             frame-to-model ICP."""
             if cfg.frame_to_frame and st.prev_depth is not None:
-                f2f = icp_against(st.prev_depth, T_prev_cur)
+                prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
+                f2f = icp_against(prev, T_prev_cur)
                 status.f2f_fitness = round(float(f2f.fitness), 4)
                 if f2f.fitness >= cfg.min_fitness and (
                     translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source)
@@ -263,6 +268,7 @@ class Tracker:
         st.velocity = inv_T(T_prev) @ T if ok else np.eye(4)
         st.T_world_prev = T
         st.prev_depth = depth if ok else None
+        st.prev_pyramid = depth_pyr if ok else None
         st.prev_features = (
             Keyframe(frame.index, frame.timestamp, T.copy(), feats)
             if ok and feats is not None and len(feats) > 0

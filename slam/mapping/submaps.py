@@ -78,6 +78,8 @@ class SubmapMap:
         self.cfg = cfg
         self.with_color = with_color
         self.submaps: list[Submap] = []
+        # a submap covers part of the scene: a smaller initial hash map (it grows when needed)
+        self._block_count = cfg.submap_block_count if cfg.submap_keyframes > 0 else None
         self._K: np.ndarray | None = None
         self._size: tuple[int, int] | None = None
         self._spill_dir: Path | None = None
@@ -123,7 +125,7 @@ class SubmapMap:
             len(self.submaps),
             anchor_kf,
             np.asarray(T_world_anchor, float).copy(),
-            TSDFVolume(self.cfg, self.with_color),
+            TSDFVolume(self.cfg, self.with_color, self._block_count),
         )
         if self.submaps:
             self._seed(sm, self.submaps[-1])
@@ -142,7 +144,7 @@ class SubmapMap:
         T_new_prev = inv_T(new.T_world_anchor) @ prev.T_world_anchor
         volume = self.volume(prev)
         for T_prev_view in prev.T_anchor_views[-self.cfg.submap_seed_views :]:
-            r = volume.render(K, w, h, T_prev_view)
+            r = volume.render(K, w, h, T_prev_view, with_normals=False)
             if (r.depth_m > 0).any():
                 new.volume.integrate(r.depth_m, _color_u8(r), K, T_new_prev @ T_prev_view)
 
@@ -216,7 +218,7 @@ class SubmapMap:
                 views.append(sm.T_anchor_views[-1])
             volume = self.volume(sm)
             for T_anchor_view in views:
-                r = volume.render(K, w, h, T_anchor_view)
+                r = volume.render(K, w, h, T_anchor_view, with_normals=False)
                 if (r.depth_m > 0).any():
                     out.integrate(r.depth_m, _color_u8(r), K, T_world_anchor @ T_anchor_view)
         log.info(

@@ -49,7 +49,9 @@ def _tensor(a: np.ndarray, dtype=None) -> o3c.Tensor:
 class TSDFVolume:
     """A TSDF volume in world coordinates (metres)."""
 
-    def __init__(self, cfg: MappingConfig, with_color: bool = True) -> None:
+    def __init__(
+        self, cfg: MappingConfig, with_color: bool = True, block_count: int | None = None
+    ) -> None:
         self.cfg = cfg
         self.with_color = with_color and cfg.integrate_color
         names = ["tsdf", "weight"] + (["color"] if self.with_color else [])
@@ -61,7 +63,7 @@ class TSDFVolume:
             channels,
             cfg.voxel_size_m,
             cfg.block_resolution,
-            cfg.block_count,
+            cfg.block_count if block_count is None else block_count,
             _CPU,
         )
         self.n_integrated = 0
@@ -177,12 +179,20 @@ class TSDFVolume:
         color = out["color"].numpy() if "color" in attrs else None
         return Rendering(depth, normals, color)
 
-    def render(self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray) -> Rendering:
-        """Render depth, normals and colour from any pose, marching through all allocated blocks."""
+    def render(
+        self,
+        K: np.ndarray,
+        width: int,
+        height: int,
+        T_world_cam: np.ndarray,
+        with_normals: bool = True,
+    ) -> Rendering:
+        """Render depth, colour and (optionally) normals from any pose, marching through all
+        allocated blocks."""
         saved = self._last_blocks
         try:
             self._last_blocks = self.active_block_coords()
-            return self.raycast(K, width, height, T_world_cam, True, True)
+            return self.raycast(K, width, height, T_world_cam, with_normals, True)
         finally:
             self._last_blocks = saved
 
