@@ -46,6 +46,10 @@ class TrackingConfig:
 
     frame_to_frame: bool = True  # initialise model ICP by ICP against the previous frame
     downsample: int = 2  # ICP and model ray-casting run at 1/downsample resolution
+    # edge-preserving (bilateral) smoothing of the depth used for tracking, as in KinectFusion;
+    # fusion keeps the raw depth. Range sigma (0 = off) and spatial sigma in full-res pixels
+    bilateral_sigma_m: float = 0.03
+    bilateral_sigma_px: float = 4.5
     iterations: list[int] = field(default_factory=lambda: [6, 4, 2])  # coarse ... fine
     depth_min_m: float = 0.2
     depth_max_m: float = 4.0

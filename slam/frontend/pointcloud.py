@@ -92,3 +92,14 @@ def resize_color(color: np.ndarray, factor: int) -> np.ndarray:
         return color
     h, w = color.shape[:2]
     return cv2.resize(color, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
+
+
+def bilateral_depth(depth_m: np.ndarray, sigma_m: float, sigma_px: float) -> np.ndarray:
+    """Edge-preserving smoothing of a depth image (KinectFusion's bilateral filter): holes (0)
+    stay holes, and since the range kernel weighs a 0 neighbour of a valid pixel by
+    ``exp(-z^2 / 2 sigma^2)`` ~ 0, holes do not pull valid depth towards the camera."""
+    d = depth_m.astype(np.float32)
+    radius = int(np.ceil(1.5 * sigma_px))
+    out = cv2.bilateralFilter(d, 2 * radius + 1, float(sigma_m), float(sigma_px))
+    out[d <= 0] = 0.0
+    return out

@@ -14,7 +14,12 @@ from slam.data.base import Frame
 from slam.errors import ConfigError
 from slam.frontend.features import FeatureSet, OrbExtractor, match_descriptors
 from slam.frontend.icp import IcpResult, projective_icp, projective_overlap
-from slam.frontend.pointcloud import depth_pyramid, downsample_depth, scale_intrinsics
+from slam.frontend.pointcloud import (
+    bilateral_depth,
+    depth_pyramid,
+    downsample_depth,
+    scale_intrinsics,
+)
 from slam.frontend.ransac import RansacResult, ransac_rigid
 from slam.geometry import inv_T, orthonormalize, rotation_angle_deg, translation_norm
 from slam.mapping.tsdf import TSDFVolume
@@ -92,9 +97,14 @@ class Tracker:
         return self.state.keyframes[-1] if self.state.keyframes else None
 
     def _tracking_depth(self, depth_m: np.ndarray) -> np.ndarray:
-        """Depth at tracking resolution (1/downsample, by depth-aware 2x2 averaging)."""
-        for _ in range(int(np.log2(self.cfg.downsample))):
+        """Depth at tracking resolution (1/downsample, by depth-aware 2x2 averaging), then
+        bilateral-filtered (at that resolution: ~4x cheaper than at full resolution)."""
+        cfg = self.cfg
+        for _ in range(int(np.log2(cfg.downsample))):
             depth_m = downsample_depth(depth_m)
+        if cfg.bilateral_sigma_m > 0:
+            sigma_px = cfg.bilateral_sigma_px / cfg.downsample
+            depth_m = bilateral_depth(depth_m, cfg.bilateral_sigma_m, sigma_px)
         return depth_m
 
     def _features(self, frame: Frame) -> FeatureSet | None:

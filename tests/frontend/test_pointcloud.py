@@ -4,6 +4,7 @@ from hypothesis import strategies as st
 
 from slam.frontend.pointcloud import (
     backproject,
+    bilateral_depth,
     depth_pyramid,
     downsample_depth,
     normal_map,
@@ -66,3 +67,22 @@ def test_pyramid_and_scaled_intrinsics_agree():
     # the centre of a 2x2 block projects to the same ray at both levels
     ray_full = (np.array([1.5, 1.5]) - K[:2, 2]) / K[0, 0]
     np.testing.assert_allclose(ray_full, (np.array([0.5, 0.5]) - K2[:2, 2]) / K2[0, 0], atol=1e-9)
+
+
+def test_bilateral_smooths_noise_keeps_edges_and_holes():
+    rng = np.random.default_rng(0)
+    depth = np.full((60, 80), 1.0, np.float32)
+    depth[:, 40:] = 2.0  # a 1 m step
+    noisy = depth + rng.normal(0, 0.003, depth.shape).astype(np.float32)
+    noisy[20:25, 10:15] = 0.0  # a hole
+    out = bilateral_depth(noisy, 0.03, 2.0)
+    assert np.all(out[20:25, 10:15] == 0.0)  # holes stay holes
+    valid = noisy > 0
+    inner = valid.copy()
+    inner[:, 35:45] = False  # away from the step
+    err_in = np.abs(noisy - depth)[inner].std()
+    err_out = np.abs(out - depth)[inner].std()
+    assert err_out < 0.5 * err_in
+    # no bleeding across the step, and no pull towards 0 next to the hole
+    assert np.abs(out[:, 39] - 1.0).max() < 0.02 and np.abs(out[:, 40] - 2.0).max() < 0.02
+    assert np.abs(out[19, 10:15] - 1.0).max() < 0.02
