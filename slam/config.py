@@ -80,7 +80,6 @@ class MappingConfig:
     trunc_voxels: float = 4.0  # truncation distance = trunc_voxels * voxel_size
     block_resolution: int = 8  # voxels per block side; 8 hugs the surface band tighter than 16
     block_count: int = 20000  # initial hash-map capacity in blocks (grows when needed)
-    submap_block_count: int = 5000  # ... of a submap (allocating 20000 blocks takes ~0.14 s)
     depth_max_m: float = 3.5
     integrate_color: bool = True
     raycast_weight_threshold: float = 3.0

@@ -214,9 +214,15 @@ class Tracker:
                     return kf.T_world_cam @ res.T  # T_world_cur
             return None
 
-        def attempt(T_prev_cur: np.ndarray, trusted: bool) -> tuple[np.ndarray, IcpResult, float]:
+        tried: list[np.ndarray] = []  # model-ICP starting poses of this frame
+
+        def attempt(
+            T_prev_cur: np.ndarray, trusted: bool
+        ) -> tuple[np.ndarray, IcpResult, float] | None:
             """Frame-to-frame ICP from a guess of ``T_prev_cur`` (when enabled), then
-            frame-to-model ICP."""
+            frame-to-model ICP; None when frame-to-frame ICP lands where an earlier attempt
+            of this frame started its model ICP (the same result again, at the cost of a
+            ray-cast)."""
             if cfg.frame_to_frame and st.prev_depth is not None:
                 prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
                 f2f = icp_against(prev, T_prev_cur)
@@ -227,7 +233,13 @@ class Tracker:
                 ):
                     T_prev_cur = f2f.T_target_source
                     trusted = True
-            return run_icp(T_prev @ T_prev_cur, trusted)
+            T_world_guess = T_prev @ T_prev_cur
+            for T_done in tried:
+                d = inv_T(T_done) @ T_world_guess
+                if translation_norm(d) < 0.005 and rotation_angle_deg(d) < 0.3:
+                    return None
+            tried.append(T_world_guess)
+            return run_icp(T_world_guess, trusted)
 
         # 1. the guess: RANSAC when the predicted motion is large, then frame-to-frame ICP
         #    against the previous frame from that guess (or from constant velocity)
@@ -241,11 +253,14 @@ class Tracker:
                 status.path = "ransac+icp"
                 trusted = True
         # 2. frame-to-model ICP from the guess; RANSAC rescue when the check fails
-        T, icp, score = attempt(T_prev_cur, trusted)
+        first = attempt(T_prev_cur, trusted)
+        assert first is not None  # nothing was tried before
+        T, icp, score = first
         ok = score >= cfg.min_overlap and icp.fitness >= cfg.min_fitness
         if not ok and color_ok and ransac is None:
             g = ransac_guess()
             if g is not None:
+                tried.append(g)
                 T2, icp2, score2 = run_icp(g)
                 if score2 > score:
                     T, icp, score = T2, icp2, score2
@@ -254,7 +269,10 @@ class Tracker:
         # 3. under large motion or failure, try other initial guesses; keep the best overlap
         if cfg.hypotheses and (large or not ok) and score < cfg.hypothesis_overlap:
             for name, guess in self._hypotheses(frame, feats, T_prev, velocity):
-                T2, icp2, score2 = attempt(guess, True)
+                tried_guess = attempt(guess, True)
+                if tried_guess is None:
+                    continue
+                T2, icp2, score2 = tried_guess
                 if score2 > score and icp2.fitness >= cfg.min_fitness:
                     T, icp, score = T2, icp2, score2
                     status.path = name

@@ -78,8 +78,6 @@ class SubmapMap:
         self.cfg = cfg
         self.with_color = with_color
         self.submaps: list[Submap] = []
-        # a submap covers part of the scene: a smaller initial hash map (it grows when needed)
-        self._block_count = cfg.submap_block_count if cfg.submap_keyframes > 0 else None
         self._K: np.ndarray | None = None
         self._size: tuple[int, int] | None = None
         self._spill_dir: Path | None = None
@@ -121,11 +119,17 @@ class SubmapMap:
         return self.submaps[-1]
 
     def start_submap(self, anchor_kf: int, T_world_anchor: np.ndarray) -> Submap:
+        capacity = None  # the first submap: mapping.block_count
+        if self.submaps:
+            # allocating the hash map costs ~7 ms per 1000 blocks and growing it later costs
+            # more (a rehash): start with room for 1.5x the previous submap's blocks
+            prev_blocks = self.volume(self.submaps[-1]).n_blocks
+            capacity = min(self.cfg.block_count, max(2000, int(1.5 * prev_blocks)))
         sm = Submap(
             len(self.submaps),
             anchor_kf,
             np.asarray(T_world_anchor, float).copy(),
-            TSDFVolume(self.cfg, self.with_color, self._block_count),
+            TSDFVolume(self.cfg, self.with_color, capacity),
         )
         if self.submaps:
             self._seed(sm, self.submaps[-1])
