@@ -209,6 +209,9 @@ class SubmapMap:
         (default: the anchors' odometry poses)."""
         cfg = self.cfg
         out = TSDFVolume(cfg, self.with_color)
+        # a rendered view shows only surfaces that passed the ray-caster's weight threshold in
+        # their submap, i.e. were seen by several frames already: one view is enough evidence
+        out.mesh_weight_threshold = 1.0
         if self._K is None or self._size is None:
             return out
         f = max(int(cfg.reintegration_downsample), 1)

@@ -67,6 +67,7 @@ class TSDFVolume:
             _CPU,
         )
         self.n_integrated = 0
+        self.mesh_weight_threshold = cfg.mesh_weight_threshold
         self._last_blocks: o3c.Tensor | None = None
 
     @property
@@ -202,7 +203,7 @@ class TSDFVolume:
 
     def extract_mesh(self, weight_threshold: float | None = None) -> o3d.geometry.TriangleMesh:
         """Marching cubes over the whole volume: a legacy Open3D mesh (vertex colours if any)."""
-        thr = self.cfg.mesh_weight_threshold if weight_threshold is None else weight_threshold
+        thr = self.mesh_weight_threshold if weight_threshold is None else weight_threshold
         mesh = self.vbg.extract_triangle_mesh(self._weight_threshold(thr)).to_legacy()
         mesh.compute_vertex_normals()
         return mesh
@@ -221,6 +222,7 @@ class TSDFVolume:
         vol.with_color = with_color and cfg.integrate_color
         vol.vbg = o3d.t.geometry.VoxelBlockGrid.load(str(path))
         vol.n_integrated = n_integrated
+        vol.mesh_weight_threshold = cfg.mesh_weight_threshold
         vol._last_blocks = None
         return vol
 
