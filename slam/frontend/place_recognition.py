@@ -55,7 +55,11 @@ def kmajority(
     rng = rng or np.random.default_rng(0)
     desc = np.unique(descriptors, axis=0)
     k = min(n_words, len(desc))
-    words = desc[_kmeanspp(desc, k, rng)].copy()
+    # k-means++ seeds from a random sample of 3k descriptors: its cost is k passes over the pool
+    # (0.34 s for 1000 words over 10000 descriptors, 0.1 s over 3000); the k-majority
+    # iterations below then use every descriptor
+    pool = desc if len(desc) <= 3 * k else desc[rng.choice(len(desc), 3 * k, replace=False)]
+    words = pool[_kmeanspp(pool, k, rng)].copy()
     bits = np.unpackbits(desc, axis=1).astype(np.float32)  # (N, 256)
     for _ in range(iterations):
         labels = _nearest_words(desc, words)

@@ -34,10 +34,10 @@ from slam.mapping.tsdf import Rendering, TSDFVolume
 log = logging.getLogger(__name__)
 
 
-def _write(sm: Submap, path: Path) -> None:
-    assert sm.volume is not None
-    sm.volume.save(path)
-    sm.volume = None  # the file now holds it; free the memory
+def _write(arrays: dict[str, np.ndarray], path: Path) -> None:
+    # numpy's file writes release the GIL: this runs beside tracking (Open3D's own
+    # VoxelBlockGrid.save holds the GIL for ~0.3 s a submap, stalling the main thread)
+    np.savez(path, **arrays)
 
 
 def _cleanup(writer: ThreadPoolExecutor, folder: Path) -> None:
@@ -95,7 +95,7 @@ class SubmapMap:
         if sm.volume is not None:
             return sm.volume
         assert sm.path is not None
-        return TSDFVolume.load(sm.path, self.cfg, self.with_color, max(sm.n_frames, 1))
+        return TSDFVolume.load(sm.path, self.cfg, self.with_color)
 
     def flush(self) -> None:
         """Wait until every submap being spilled is on disk."""
@@ -110,7 +110,10 @@ class SubmapMap:
         if self._writer is None or self._spill_dir is None or sm.volume is None:
             return
         sm.path = self._spill_dir / f"submap_{sm.id:04d}.npz"
-        sm.saving = self._writer.submit(_write, sm, sm.path)
+        arrays = sm.volume.to_arrays()
+        arrays["n_integrated"] = np.array(sm.volume.n_integrated)
+        sm.volume = None  # the arrays hold it until the file does
+        sm.saving = self._writer.submit(_write, arrays, sm.path)
         log.debug("submap %d spilling to %s", sm.id, sm.path)
 
     # --- submap lifecycle

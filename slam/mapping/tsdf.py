@@ -54,7 +54,7 @@ class TSDFVolume:
     ) -> None:
         self.cfg = cfg
         self.with_color = with_color and cfg.integrate_color
-        names = ["tsdf", "weight"] + (["color"] if self.with_color else [])
+        names = self._attribute_names()
         dtypes = [o3c.float32] * len(names)
         channels = [[1], [1]] + ([[3]] if self.with_color else [])
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
@@ -208,23 +208,49 @@ class TSDFVolume:
         mesh.compute_vertex_normals()
         return mesh
 
-    def save(self, path: str | Path) -> None:
-        """Save the voxel grid (``.npz``) for checkpointing."""
-        self.vbg.save(str(path))
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The allocated blocks as numpy arrays (copies): ``keys`` (N, 3) int32 block
+        coordinates, and per attribute (``tsdf``, ``weight``, ``color`` when fused) an
+        (N, r, r, r, channels) float32 array, r = block resolution."""
+        hashmap = self.vbg.hashmap()
+        idx = hashmap.active_buf_indices().numpy().astype(np.int64)
+        out = {"keys": hashmap.key_tensor().numpy()[idx]}
+        for i, name in enumerate(self._attribute_names()):
+            out[name] = hashmap.value_tensor(i).numpy()[idx]
+        return out
 
     @classmethod
-    def load(
-        cls, path: str | Path, cfg: MappingConfig, with_color: bool = True, n_integrated: int = 1
+    def from_arrays(
+        cls,
+        arrays: dict[str, np.ndarray],
+        cfg: MappingConfig,
+        with_color: bool = True,
+        n_integrated: int = 1,
     ) -> TSDFVolume:
-        """A volume saved with :meth:`save` (``n_integrated``: frames fused into it)."""
-        vol = cls.__new__(cls)
-        vol.cfg = cfg
-        vol.with_color = with_color and cfg.integrate_color
-        vol.vbg = o3d.t.geometry.VoxelBlockGrid.load(str(path))
+        """A volume holding the blocks of :meth:`to_arrays` (``n_integrated``: frames fused
+        into it, which caps the weight thresholds early on)."""
+        keys = np.ascontiguousarray(arrays["keys"], np.int32)
+        vol = cls(cfg, with_color, block_count=max(int(1.5 * len(keys)), 1000))
+        if len(keys):
+            values = [o3c.Tensor(np.ascontiguousarray(arrays[n])) for n in vol._attribute_names()]
+            vol.vbg.hashmap().insert(o3c.Tensor(keys), values)
         vol.n_integrated = n_integrated
-        vol.mesh_weight_threshold = cfg.mesh_weight_threshold
-        vol._last_blocks = None
         return vol
+
+    def _attribute_names(self) -> list[str]:
+        return ["tsdf", "weight"] + (["color"] if self.with_color else [])
+
+    def save(self, path: str | Path) -> None:
+        """Save the blocks (uncompressed ``.npz`` of :meth:`to_arrays`) for checkpointing."""
+        np.savez(path, **self.to_arrays(), n_integrated=np.array(self.n_integrated))
+
+    @classmethod
+    def load(cls, path: str | Path, cfg: MappingConfig, with_color: bool = True) -> TSDFVolume:
+        """A volume saved with :meth:`save` (or its arrays written with ``np.savez``)."""
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+        n = int(arrays.pop("n_integrated", 1))
+        return cls.from_arrays(arrays, cfg, with_color, n)
 
     @property
     def n_blocks(self) -> int:

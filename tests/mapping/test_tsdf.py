@@ -104,3 +104,16 @@ def test_fused_surface_renders_on_the_pinhole_convention_at_every_resolution():
         assert np.abs(off_cam[:2]).max() < 3e-4, (factor, off_cam)
         assert abs(off_cam[2]) < 0.15 * voxel, (factor, off_cam)
         assert abs(rad - radius) < 0.15 * voxel, (factor, rad)
+
+
+def test_save_and_load_restore_the_same_volume(tmp_path):
+    """Blocks written with ``save`` (uncompressed npz of ``to_arrays``) come back identical:
+    same ray-cast, same mesh, same frame count (it caps the weight thresholds early on)."""
+    vol, center, radius, K, poses = _fuse_sphere(0.02)
+    vol.save(tmp_path / "v.npz")
+    back = TSDFVolume.load(tmp_path / "v.npz", vol.cfg, with_color=False)
+    assert back.n_integrated == vol.n_integrated == len(poses)
+    assert back.n_blocks == vol.n_blocks
+    a, b = vol.render(K, 320, 240, poses[3]), back.render(K, 320, 240, poses[3])
+    np.testing.assert_array_equal(a.depth_m, b.depth_m)
+    assert len(vol.extract_mesh().vertices) == len(back.extract_mesh().vertices)
