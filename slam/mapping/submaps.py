@@ -35,8 +35,9 @@ log = logging.getLogger(__name__)
 
 
 def _write(arrays: dict[str, np.ndarray], path: Path) -> None:
-    # numpy's file writes release the GIL: this runs beside tracking (Open3D's own
-    # VoxelBlockGrid.save holds the GIL for ~0.3 s a submap, stalling the main thread)
+    # TSDFVolume.save's format, written from arrays copied out beforehand: numpy's file writes
+    # release the GIL, so this runs beside tracking (Open3D's own VoxelBlockGrid.save holds the
+    # GIL for ~0.3 s a submap, stalling the main thread)
     np.savez(path, **arrays)
 
 
@@ -111,7 +112,6 @@ class SubmapMap:
             return
         sm.path = self._spill_dir / f"submap_{sm.id:04d}.npz"
         arrays = sm.volume.to_arrays()
-        arrays["n_integrated"] = np.array(sm.volume.n_integrated)
         sm.volume = None  # the arrays hold it until the file does
         sm.saving = self._writer.submit(_write, arrays, sm.path)
         log.debug("submap %d spilling to %s", sm.id, sm.path)

@@ -210,11 +210,15 @@ class TSDFVolume:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The allocated blocks as numpy arrays (copies): ``keys`` (N, 3) int32 block
-        coordinates, and per attribute (``tsdf``, ``weight``, ``color`` when fused) an
-        (N, r, r, r, channels) float32 array, r = block resolution."""
+        coordinates, per attribute (``tsdf``, ``weight``, ``color`` when fused) an
+        (N, r, r, r, channels) float32 array, r = block resolution, and ``n_integrated``
+        (0-d). ``np.savez`` of this dict is the file format of :meth:`save`."""
         hashmap = self.vbg.hashmap()
         idx = hashmap.active_buf_indices().numpy().astype(np.int64)
-        out = {"keys": hashmap.key_tensor().numpy()[idx]}
+        out = {
+            "keys": hashmap.key_tensor().numpy()[idx],
+            "n_integrated": np.array(self.n_integrated),
+        }
         for i, name in enumerate(self._attribute_names()):
             out[name] = hashmap.value_tensor(i).numpy()[idx]
         return out
@@ -225,16 +229,15 @@ class TSDFVolume:
         arrays: dict[str, np.ndarray],
         cfg: MappingConfig,
         with_color: bool = True,
-        n_integrated: int = 1,
     ) -> TSDFVolume:
-        """A volume holding the blocks of :meth:`to_arrays` (``n_integrated``: frames fused
-        into it, which caps the weight thresholds early on)."""
+        """A volume holding the blocks of :meth:`to_arrays` (its ``n_integrated``, the frames
+        fused into it, caps the weight thresholds early on; 1 when absent)."""
         keys = np.ascontiguousarray(arrays["keys"], np.int32)
         vol = cls(cfg, with_color, block_count=max(int(1.5 * len(keys)), 1000))
         if len(keys):
             values = [o3c.Tensor(np.ascontiguousarray(arrays[n])) for n in vol._attribute_names()]
             vol.vbg.hashmap().insert(o3c.Tensor(keys), values)
-        vol.n_integrated = n_integrated
+        vol.n_integrated = int(arrays.get("n_integrated", 1))
         return vol
 
     def _attribute_names(self) -> list[str]:
@@ -242,15 +245,13 @@ class TSDFVolume:
 
     def save(self, path: str | Path) -> None:
         """Save the blocks (uncompressed ``.npz`` of :meth:`to_arrays`) for checkpointing."""
-        np.savez(path, **self.to_arrays(), n_integrated=np.array(self.n_integrated))
+        np.savez(path, **self.to_arrays())
 
     @classmethod
     def load(cls, path: str | Path, cfg: MappingConfig, with_color: bool = True) -> TSDFVolume:
         """A volume saved with :meth:`save` (or its arrays written with ``np.savez``)."""
         with np.load(path) as z:
-            arrays = {k: z[k] for k in z.files}
-        n = int(arrays.pop("n_integrated", 1))
-        return cls.from_arrays(arrays, cfg, with_color, n)
+            return cls.from_arrays({k: z[k] for k in z.files}, cfg, with_color)
 
     @property
     def n_blocks(self) -> int:
