@@ -14,6 +14,14 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from slam.errors import SlamError
 
+# options shared by `slam eval` and `slam report`
+TMaxDiff = Annotated[
+    float, typer.Option("--t-max-diff", help="Max timestamp difference to associate (s).")
+]
+CorrectScale = Annotated[
+    bool, typer.Option("--correct-scale", help="Sim(3) alignment instead of SE(3).")
+]
+
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
@@ -248,12 +256,8 @@ def eval_cmd(
         Optional[Path], typer.Option("--plot", help="Write a top-view plot to this PNG.")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-    t_max_diff: Annotated[
-        float, typer.Option("--t-max-diff", help="Max timestamp difference to associate (s).")
-    ] = 0.01,
-    correct_scale: Annotated[
-        bool, typer.Option("--correct-scale", help="Sim(3) alignment instead of SE(3).")
-    ] = False,
+    t_max_diff: TMaxDiff = 0.01,
+    correct_scale: CorrectScale = False,
     rpe_delta: Annotated[
         Optional[list[str]],
         typer.Option(
@@ -347,12 +351,8 @@ def report_cmd(
         Optional[Path],
         typer.Option("--gt", help="Ground-truth file (default: from the run's config)."),
     ] = None,
-    t_max_diff: Annotated[
-        float, typer.Option("--t-max-diff", help="Max timestamp difference to associate (s).")
-    ] = 0.01,
-    correct_scale: Annotated[
-        bool, typer.Option("--correct-scale", help="Sim(3) alignment instead of SE(3).")
-    ] = False,
+    t_max_diff: TMaxDiff = 0.01,
+    correct_scale: CorrectScale = False,
 ) -> None:
     """Write RUN_DIR/report.md with plots: top view with loop edges, error over time, timing."""
     from slam.report import write_report

@@ -775,6 +775,20 @@ def _loops_accepted(run_dir: Path) -> int | None:
     return int(value) if isinstance(value, (int, float)) else None
 
 
+def run_trajectory_path(run_dir: str | Path) -> Path:
+    """``RUN_DIR/trajectory.txt``; raises :class:`TrajectoryError` when the folder or the file
+    is missing."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise TrajectoryError(f"{run_dir}: run folder not found")
+    traj_path = run_dir / "trajectory.txt"
+    if not traj_path.is_file():
+        raise TrajectoryError(
+            f"{run_dir}: no trajectory.txt in the run folder (is it the --out folder of `slam run`?)"
+        )
+    return traj_path
+
+
 def evaluate_run(
     run_dir: str | Path,
     gt_path: str | Path | None = None,
@@ -787,13 +801,7 @@ def evaluate_run(
     (found by :func:`load_run_ground_truth`), each with its own alignment, same options as
     :func:`evaluate_full`."""
     run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise TrajectoryError(f"{run_dir}: run folder not found")
-    traj_path = run_dir / "trajectory.txt"
-    if not traj_path.is_file():
-        raise TrajectoryError(
-            f"{run_dir}: no trajectory.txt in the run folder (is it the --out folder of `slam run`?)"
-        )
+    traj_path = run_trajectory_path(run_dir)
     gt, source = load_run_ground_truth(run_dir, gt_path)
     est = read_tum(traj_path)
     kw: dict[str, Any] = dict(

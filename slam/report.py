@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from slam import eval as slam_eval
-from slam.errors import SlamError, TrajectoryError
+from slam.errors import SlamError
 from slam.trajectory import Trajectory, atomic_write_text, read_tum
 
 logger = logging.getLogger(__name__)
@@ -137,14 +137,7 @@ def load_run_folder(run_dir: str | Path) -> RunFolder:
     """Read a run folder. Only ``trajectory.txt`` is required; raises :class:`SlamError` naming
     the file when it is missing or a present file is malformed."""
     path = Path(run_dir)
-    if not path.is_dir():
-        raise SlamError(f"{path}: run folder not found")
-    traj_path = path / "trajectory.txt"
-    if not traj_path.is_file():
-        raise TrajectoryError(
-            f"{path}: no trajectory.txt in the run folder (is it the --out folder of `slam run`?)"
-        )
-    run = RunFolder(path, read_tum(traj_path), None)
+    run = RunFolder(path, read_tum(slam_eval.run_trajectory_path(path)), None)
     if (path / "odometry.txt").is_file():
         run.odometry = read_tum(path / "odometry.txt")
     if (path / "metrics.json").is_file():
