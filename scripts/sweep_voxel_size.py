@@ -29,17 +29,7 @@ from slam.data.synthetic import SynthConfig, generate_sequence
 
 def synthetic_sequence(folder: Path, frames: int) -> Path:
     """A small synthetic loop: the first ``frames`` frames of a 300-frame path at 320x240."""
-    cfg = SynthConfig(
-        frames=300,
-        render_frames=frames,
-        width=320,
-        height=240,
-        fx=262.5,
-        fy=262.5,
-        cx=159.5,
-        cy=119.5,
-        seed=0,
-    )
+    cfg = SynthConfig.half_resolution(frames=300, render_frames=frames, seed=0)
     return generate_sequence(folder / "synthetic", cfg)
 
 

@@ -83,7 +83,5 @@ def synth_loop_320(tmp_path_factory) -> Path:
     from slam.data.synthetic import SynthConfig, generate_sequence
 
     out = tmp_path_factory.mktemp("synth") / "loop320"
-    cfg = SynthConfig(
-        frames=300, loop=True, seed=1, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5
-    )
+    cfg = SynthConfig.half_resolution(frames=300, loop=True, seed=1)
     return generate_sequence(out, cfg)

@@ -27,9 +27,7 @@ BAD = {"tracking": {"no_such_key": 1}}
 def _tiny_synthetic(path: Path) -> Path:
     from slam.data.synthetic import SynthConfig, generate_sequence
 
-    cfg = SynthConfig(
-        frames=300, render_frames=10, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5
-    )
+    cfg = SynthConfig.half_resolution(frames=300, render_frames=10)
     return generate_sequence(path, cfg)
 
 

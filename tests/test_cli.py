@@ -71,16 +71,7 @@ def test_run_writes_the_run_folder(tmp_path):
 
     seq = generate_sequence(
         tmp_path / "seq",
-        SynthConfig(
-            frames=300,
-            render_frames=8,
-            width=320,
-            height=240,
-            fx=262.5,
-            fy=262.5,
-            cx=159.5,
-            cy=119.5,
-        ),
+        SynthConfig.half_resolution(frames=300, render_frames=8),
     )
     out = tmp_path / "run"
     res = runner.invoke(app, ["run", str(seq), "--out", str(out), "--max-frames", "6"])

@@ -116,6 +116,21 @@ class SynthConfig:
     drift_bias: float = 0.0
     render_frames: int | None = None  # render only the first N frames of the trajectory
 
+    @classmethod
+    def half_resolution(cls, **overrides) -> SynthConfig:
+        """The default camera at 320x240 (focal lengths halved, principal point on the pixel-
+        centre convention): a quarter of the pixels, for quick tests and sweeps."""
+        d = cls()
+        cam = dict(
+            width=d.width // 2,
+            height=d.height // 2,
+            fx=d.fx / 2,
+            fy=d.fy / 2,
+            cx=(d.cx + 0.5) / 2 - 0.5,
+            cy=(d.cy + 0.5) / 2 - 0.5,
+        )
+        return cls(**{**cam, **overrides})
+
     def calibration(self) -> Calibration:
         """The :class:`Calibration` of the rendered images (validates the intrinsics)."""
         return Calibration(

@@ -17,13 +17,14 @@ from slam.data.synthetic import SynthConfig, generate_sequence
 from slam.geometry import exp_se3, inv_T
 from slam.trajectory import Trajectory
 
-SMALL = dict(frames=300, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5)
 # ICP at full 320x240 resolution: the same pixel count as the default 640x480 / 2
 RUN = {"tracking": {"downsample": 1}}
 
 
 def _run(tmp_path_factory, name: str, **synth):
-    path = generate_sequence(tmp_path_factory.mktemp(name) / name, SynthConfig(**SMALL, **synth))
+    path = generate_sequence(
+        tmp_path_factory.mktemp(name) / name, SynthConfig.half_resolution(frames=300, **synth)
+    )
     seq = slam.open_sequence(path)
     return path, seq, slam.run(seq, config_from_dict(RUN))
 

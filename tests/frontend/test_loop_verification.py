@@ -9,7 +9,7 @@ from slam.frontend.features import OrbExtractor
 from slam.frontend.loop_verification import KeyframeView, LoopVerifier, adjoint
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 
-CFG = SynthConfig(frames=300, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5)
+CFG = SynthConfig.half_resolution(frames=300)
 
 
 @pytest.fixture(scope="module")
