@@ -8,7 +8,7 @@ Quick use::
     print(result.metrics["ate_rmse_m"])
 """
 
-from slam.api import run_sequence
+from slam.api import resume_run, run_sequence
 from slam.config import SlamConfig, config_from_dict, load_config
 from slam.data import Calibration, Frame, Sequence, open_sequence
 from slam.errors import (
@@ -16,11 +16,13 @@ from slam.errors import (
     ConfigError,
     DatasetError,
     FrameReadError,
+    RunFolderError,
     SlamError,
     TrackingError,
     TrajectoryError,
 )
 from slam.pipeline import RunResult, run, save_run
+from slam.system import FrameResult, Slam
 from slam.trajectory import Trajectory, read_tum, write_tum
 
 __version__ = "0.1.0"
@@ -32,7 +34,10 @@ __all__ = [
     "DatasetError",
     "Frame",
     "FrameReadError",
+    "FrameResult",
+    "RunFolderError",
     "RunResult",
+    "Slam",
     "Sequence",
     "SlamConfig",
     "SlamError",
@@ -43,6 +48,7 @@ __all__ = [
     "load_config",
     "open_sequence",
     "read_tum",
+    "resume_run",
     "run",
     "run_sequence",
     "save_run",

@@ -1,14 +1,19 @@
-"""High-level entry points used by the CLI and by scripts."""
+"""High-level entry points used by the CLI and by scripts: a run folder from a sequence folder,
+and the resumption of an interrupted run."""
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 
+from slam.checkpoint import has_checkpoint
 from slam.config import SlamConfig, load_config
 from slam.data.base import Sequence
 from slam.data.loader import open_sequence
-from slam.pipeline import ProgressCallback, RunResult, run, save_run
+from slam.errors import RunFolderError
+from slam.pipeline import FrameCallback, ProgressCallback, RunResult, run, save_run
+from slam.run_folder import prepare_run_dir, remove_work_dirs
+from slam.trajectory import atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -20,18 +25,74 @@ def run_sequence(
     config: SlamConfig | None = None,
     max_frames: int | None = None,
     progress: ProgressCallback | None = None,
+    checkpoint_every: int = 0,
+    overwrite: bool = False,
+    on_frame: FrameCallback | None = None,
 ) -> tuple[RunResult, Path]:
     """Open a sequence folder (``None``: the built-in synthetic demo), run SLAM, save the run
     folder. Config: ``config`` if given, else defaults overridden by the YAML at ``config_path``.
+
+    Before the first frame: the config and the sequence are checked, and ``out_dir`` must be
+    writable and must not hold another run unless ``overwrite`` (which deletes its outputs).
+    ``config.yaml`` is written at once, ``metrics.json`` last; ``checkpoint_every`` N frames the
+    state goes to ``out_dir/checkpoint/`` so :func:`resume_run` can continue after a kill.
     """
     cfg = config if config is not None else load_config(config_path)
+    if max_frames is not None:
+        cfg.dataset.max_frames = max_frames
+    cfg.validate()
+    out = prepare_run_dir(out_dir, overwrite)
     if sequence is None:
         from slam.demo import demo_sequence_path
 
         sequence = demo_sequence_path()
-    if max_frames is not None:
-        cfg.dataset.max_frames = max_frames
     cfg.dataset.path = str(Path(sequence).resolve())
     seq: Sequence = open_sequence(sequence, cfg.dataset.layout, cfg.dataset.calibration)
-    result = run(seq, cfg, progress=progress)
-    return result, save_run(result, out_dir)
+    atomic_write_text(out / "config.yaml", cfg.to_yaml())
+    result = run(
+        seq,
+        cfg,
+        progress=progress,
+        run_dir=out,
+        checkpoint_every=checkpoint_every,
+        on_frame=on_frame,
+    )
+    save_run(result, out)
+    remove_work_dirs(out)
+    return result, out
+
+
+def resume_run(
+    run_dir: str | Path,
+    progress: ProgressCallback | None = None,
+    checkpoint_every: int | None = None,
+    on_frame: FrameCallback | None = None,
+) -> tuple[RunResult, Path]:
+    """Continue an interrupted run from its last checkpoint, with the config it was started
+    with (``run_dir/config.yaml``), and write the same outputs as an uninterrupted run.
+    ``checkpoint_every``: default the interrupted run's."""
+    run_dir = Path(run_dir)
+    if (run_dir / "metrics.json").is_file():
+        raise RunFolderError(f"{run_dir}: the run is complete (metrics.json); nothing to resume")
+    if not has_checkpoint(run_dir):
+        raise RunFolderError(
+            f"{run_dir}: no checkpoint to resume from (checkpoint/state.pkl); the run was "
+            "stopped before its first checkpoint or ran without --checkpoint-every: start it "
+            "again with --overwrite"
+        )
+    cfg = load_config(run_dir / "config.yaml")
+    if not cfg.dataset.path:
+        raise RunFolderError(f"{run_dir / 'config.yaml'}: dataset.path is missing")
+    seq = open_sequence(cfg.dataset.path, cfg.dataset.layout, cfg.dataset.calibration)
+    result = run(
+        seq,
+        cfg,
+        progress=progress,
+        run_dir=run_dir,
+        checkpoint_every=checkpoint_every,
+        resume=True,
+        on_frame=on_frame,
+    )
+    save_run(result, run_dir)
+    remove_work_dirs(run_dir)
+    return result, run_dir

@@ -57,16 +57,45 @@ def run(
         Optional[Path], typer.Option("--config", "-c", help="YAML file overriding defaults.")
     ] = None,
     max_frames: Annotated[
-        Optional[int], typer.Option("--max-frames", help="Process at most N frames.")
+        Optional[int], typer.Option("--max-frames", min=1, help="Process at most N frames.")
     ] = None,
+    checkpoint_every: Annotated[
+        int,
+        typer.Option(
+            "--checkpoint-every",
+            min=0,
+            help="Write the run's state to OUT/checkpoint/ every N frames (0: never), so "
+            "`--resume` can continue it after a crash or kill.",
+        ),
+    ] = 0,
+    resume: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--resume",
+            help="Continue the interrupted run in this folder from its last checkpoint (same "
+            "sequence and config).",
+        ),
+    ] = None,
+    overwrite: Annotated[
+        bool,
+        typer.Option("--overwrite", help="Replace the run already in --out (deletes its outputs)."),
+    ] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Track a sequence, fuse a TSDF map and write trajectory, mesh and metrics to the run folder."""
-    from slam.api import run_sequence
+    import time
+
+    from slam.api import resume_run, run_sequence
+    from slam.pipeline import summary_line
 
     _setup_logging(verbose)
     try:
-        with Progress(
+        if resume is not None and (sequence is not None or config is not None or max_frames):
+            raise SlamError(
+                "--resume continues a run with its own sequence and config: give no SEQUENCE, "
+                "--config or --max-frames with it"
+            )
+        progress = Progress(
             TextColumn("[bold]{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
@@ -75,33 +104,48 @@ def run(
             TimeElapsedColumn(),
             console=console,
             transient=False,
-        ) as progress:
-            task = progress.add_task("tracking", total=None, fps=0.0, state="")
-            import time
+        )
+        task = progress.add_task("tracking", total=None, fps=0.0, state="")
+        t0: list[float] = []  # set at the first frame: the bar appears once frames flow
+        first: list[int] = []
 
-            t0: list[float] = []  # set at the first frame, after any demo generation
+        def on_frame(done: int, total: int, status) -> None:
+            if not t0:
+                progress.start()
+                t0.append(time.perf_counter())
+                first.append(done)
+            fps = (done - first[0]) / max(time.perf_counter() - t0[0], 1e-9)
+            if status is None:
+                state = "[yellow]skipped (unreadable)[/]"
+            elif status.ok:
+                state = f"{status.path} overlap {status.overlap:.2f}"
+            else:
+                state = "[red]lost[/]"
+            progress.update(task, completed=done, total=total, fps=fps, state=state)
 
-            def on_frame(done: int, total: int, status) -> None:
-                if not t0:
-                    t0.append(time.perf_counter())
-                fps = (done - 1) / max(time.perf_counter() - t0[0], 1e-9)
-                state = "" if status is None else f"{status.path} overlap {status.overlap:.2f}"
-                progress.update(task, completed=done, total=total, fps=fps, state=state)
-
-            result, run_dir = run_sequence(
-                sequence, out, config_path=config, max_frames=max_frames, progress=on_frame
-            )
+        try:
+            if resume is not None:
+                result, run_dir = resume_run(
+                    resume, progress=on_frame, checkpoint_every=checkpoint_every or None
+                )
+            else:
+                result, run_dir = run_sequence(
+                    sequence,
+                    out,
+                    config_path=config,
+                    max_frames=max_frames,
+                    progress=on_frame,
+                    checkpoint_every=checkpoint_every,
+                    overwrite=overwrite,
+                )
+        finally:
+            progress.stop()
     except SlamError as exc:
         _fail(exc)
         return
-    m = result.metrics
     files = ", ".join(sorted(p.name for p in run_dir.iterdir() if p.is_file()))
     console.print(f"[green]wrote[/] {run_dir}: {files}")
-    line = f"{m['frames']} frames, {m['fps']:.1f} fps, {m['tracking_failures']} tracking failures"
-    line += f", {m['loops_accepted']} loops closed"
-    if "ate_rmse_m" in m:
-        line += f", ATE RMSE {m['ate_rmse_m']:.4f} m (odometry {m['ate_rmse_odometry_m']:.4f} m)"
-    typer.echo(line)
+    typer.echo(summary_line(result.metrics))
 
 
 @app.command()

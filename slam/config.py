@@ -6,6 +6,7 @@ Each component receives only its own section (``cfg.tracking``, ``cfg.mapping``,
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import types
 import typing
 from dataclasses import dataclass, field
@@ -69,6 +70,19 @@ class TrackingConfig:
     relocalisation_keyframes: int = 5  # RANSAC tries this many recent keyframes when needed
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
+    # robustness: a frame with less usable depth than this fraction of its pixels is lost
+    min_depth_fraction: float = 0.02
+    # an interval this many times the usual one (or a skipped frame) is a gap: the motion
+    # prediction is not trusted and the pose must be verified by ORB matches
+    gap_factor: float = 2.5
+    # ... verified when this many ORB matches agree with the pose (or the depth overlap with the
+    # model reaches hypothesis_overlap); a fixed pose, unlike a RANSAC search, rarely gathers
+    # agreeing matches by chance, so this is below ransac.min_inliers
+    verify_min_matches: int = 8
+    # while lost, every frame is relocalised against the map's keyframes (at most this many
+    # candidates a frame); after this many lost frames with usable depth a new map segment starts
+    relocalisation_candidates: int = 5
+    new_segment_after_lost: int = 10
     ransac: RansacConfig = field(default_factory=RansacConfig)
 
 
@@ -120,6 +134,8 @@ class LoopConfig:
     consistency_per_m: float = 0.1
     consistency_deg: float = 10.0
     consistency_deg_per_m: float = 5.0
+    # two map segments are joined when this many verified revisits agree on their transform
+    join_verifications: int = 2
 
 
 @dataclass
@@ -154,6 +170,72 @@ class SlamConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def validate(self) -> SlamConfig:
+        """Raise :class:`ConfigError` naming the first key whose value is out of range."""
+        d, t, m, lp, b = self.dataset, self.tracking, self.mapping, self.loop, self.backend
+        checks: list[tuple[bool, str, Any, str]] = [
+            (d.layout in ("auto", "tum", "7scenes"), "dataset.layout", d.layout, "auto, tum or 7scenes"),
+            (d.max_frames is None or d.max_frames >= 1, "dataset.max_frames", d.max_frames, ">= 1 (or null for all)"),
+            (d.stride >= 1, "dataset.stride", d.stride, ">= 1"),
+            (t.downsample in (1, 2, 4), "tracking.downsample", t.downsample, "1, 2 or 4"),
+            (len(t.iterations) >= 1, "tracking.iterations", t.iterations, "a non-empty list (iterations per pyramid level, coarse to fine)"),
+            (all(i >= 0 for i in t.iterations) and sum(t.iterations) > 0, "tracking.iterations", t.iterations, "non-negative counts, not all 0"),
+            (t.depth_min_m >= 0, "tracking.depth_min_m", t.depth_min_m, ">= 0"),
+            (t.depth_max_m > t.depth_min_m, "tracking.depth_max_m", t.depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),
+            (t.max_correspondence_m > 0, "tracking.max_correspondence_m", t.max_correspondence_m, "> 0"),
+            (t.huber_delta_m > 0, "tracking.huber_delta_m", t.huber_delta_m, "> 0"),
+            (t.coarse_correspondence_factor >= 1, "tracking.coarse_correspondence_factor", t.coarse_correspondence_factor, ">= 1"),
+            (0 <= t.min_fitness <= 1, "tracking.min_fitness", t.min_fitness, "in [0, 1]"),
+            (0 <= t.min_overlap <= 1, "tracking.min_overlap", t.min_overlap, "in [0, 1]"),
+            (0 <= t.hypothesis_overlap <= 1, "tracking.hypothesis_overlap", t.hypothesis_overlap, "in [0, 1]"),
+            (t.inlier_threshold_m > 0, "tracking.inlier_threshold_m", t.inlier_threshold_m, "> 0"),
+            (t.keyframe_translation_m > 0, "tracking.keyframe_translation_m", t.keyframe_translation_m, "> 0"),
+            (t.keyframe_rotation_deg > 0, "tracking.keyframe_rotation_deg", t.keyframe_rotation_deg, "> 0"),
+            (0 <= t.min_depth_fraction < 1, "tracking.min_depth_fraction", t.min_depth_fraction, "in [0, 1)"),
+            (t.gap_factor > 1, "tracking.gap_factor", t.gap_factor, "> 1"),
+            (t.verify_min_matches >= 3, "tracking.verify_min_matches", t.verify_min_matches, ">= 3"),
+            (t.relocalisation_candidates >= 1, "tracking.relocalisation_candidates", t.relocalisation_candidates, ">= 1"),
+            (t.new_segment_after_lost >= 1, "tracking.new_segment_after_lost", t.new_segment_after_lost, ">= 1"),
+            (t.ransac.n_features >= 10, "tracking.ransac.n_features", t.ransac.n_features, ">= 10"),
+            (0 < t.ransac.ratio <= 1, "tracking.ransac.ratio", t.ransac.ratio, "in (0, 1]"),
+            (t.ransac.iterations >= 1, "tracking.ransac.iterations", t.ransac.iterations, ">= 1"),
+            (t.ransac.inlier_threshold_m > 0, "tracking.ransac.inlier_threshold_m", t.ransac.inlier_threshold_m, "> 0"),
+            (t.ransac.min_inliers >= 3, "tracking.ransac.min_inliers", t.ransac.min_inliers, ">= 3"),
+            (m.voxel_size_m > 0, "mapping.voxel_size_m", m.voxel_size_m, "> 0 (metres, e.g. 0.01)"),
+            (m.trunc_voxels > 0, "mapping.trunc_voxels", m.trunc_voxels, "> 0"),
+            (m.block_resolution in (4, 8, 16), "mapping.block_resolution", m.block_resolution, "4, 8 or 16"),
+            (m.block_count >= 1, "mapping.block_count", m.block_count, ">= 1"),
+            (m.depth_max_m > 0, "mapping.depth_max_m", m.depth_max_m, "> 0"),
+            (m.raycast_weight_threshold >= 0, "mapping.raycast_weight_threshold", m.raycast_weight_threshold, ">= 0"),
+            (m.mesh_weight_threshold >= 0, "mapping.mesh_weight_threshold", m.mesh_weight_threshold, ">= 0"),
+            (m.submap_keyframes >= 0, "mapping.submap_keyframes", m.submap_keyframes, ">= 0 (0: a single map)"),
+            (m.submap_min_frames >= 0, "mapping.submap_min_frames", m.submap_min_frames, ">= 0"),
+            (m.submap_overlap_frames >= 0, "mapping.submap_overlap_frames", m.submap_overlap_frames, ">= 0"),
+            (m.submap_seed_views >= 0, "mapping.submap_seed_views", m.submap_seed_views, ">= 0"),
+            (m.reintegration_stride >= 1, "mapping.reintegration_stride", m.reintegration_stride, ">= 1"),
+            (m.reintegration_downsample in (1, 2, 4), "mapping.reintegration_downsample", m.reintegration_downsample, "1, 2 or 4"),
+            (lp.vocabulary_words >= 2, "loop.vocabulary_words", lp.vocabulary_words, ">= 2"),
+            (lp.vocabulary_keyframes >= 1, "loop.vocabulary_keyframes", lp.vocabulary_keyframes, ">= 1"),
+            (lp.exclude_recent_keyframes >= 0, "loop.exclude_recent_keyframes", lp.exclude_recent_keyframes, ">= 0"),
+            (lp.max_candidates >= 1, "loop.max_candidates", lp.max_candidates, ">= 1"),
+            (0 < lp.ratio <= 1, "loop.ratio", lp.ratio, "in (0, 1]"),
+            (lp.ransac_iterations >= 1, "loop.ransac_iterations", lp.ransac_iterations, ">= 1"),
+            (lp.ransac_threshold_m > 0, "loop.ransac_threshold_m", lp.ransac_threshold_m, "> 0"),
+            (lp.min_inliers >= 3, "loop.min_inliers", lp.min_inliers, ">= 3"),
+            (0 <= lp.min_overlap <= 1, "loop.min_overlap", lp.min_overlap, "in [0, 1]"),
+            (lp.join_verifications >= 1, "loop.join_verifications", lp.join_verifications, ">= 1"),
+            (b.odometry_sigma_m > 0, "backend.odometry_sigma_m", b.odometry_sigma_m, "> 0"),
+            (b.loop_sigma_m > 0, "backend.loop_sigma_m", b.loop_sigma_m, "> 0"),
+            (b.loop_kernel in ("cauchy", "huber", "none"), "backend.loop_kernel", b.loop_kernel, "cauchy, huber or none"),
+            (b.loop_kernel_width > 0, "backend.loop_kernel_width", b.loop_kernel_width, "> 0"),
+            (b.loop_prune_sigma > 0, "backend.loop_prune_sigma", b.loop_prune_sigma, "> 0"),
+            (b.max_iterations >= 1, "backend.max_iterations", b.max_iterations, ">= 1"),
+        ]
+        for ok, key, value, requirement in checks:
+            if not ok:
+                raise ConfigError(f"config key '{key}' must be {requirement}, got {value!r}")
+        return self
+
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
 
@@ -167,14 +249,39 @@ def _build(cls: type, data: Any, where: str) -> Any:
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - names)
     if unknown:
+        hints = []
+        for key in unknown:
+            close = difflib.get_close_matches(str(key), sorted(names), n=1, cutoff=0.6)
+            elsewhere = _sections_with(str(key))
+            if close:
+                hints.append(f"did you mean '{close[0]}' for '{key}'?")
+            elif elsewhere:
+                hints.append(f"'{key}' belongs in section {' or '.join(elsewhere)}")
         raise ConfigError(
-            f"unknown config key(s) {unknown} in section '{where or 'root'}'; "
-            f"valid keys: {sorted(names)}"
+            f"unknown config key(s) {unknown} in section '{where or 'root'}'"
+            + (f"; {'; '.join(hints)}" if hints else "")
+            + f"; valid keys: {sorted(names)}"
         )
     kwargs = {}
     for name, value in data.items():
         kwargs[name] = _coerce(hints[name], value, f"{where}.{name}" if where else name)
     return cls(**kwargs)
+
+
+def _sections_with(key: str) -> list[str]:
+    """Config sections (dotted paths) that have a field called ``key``."""
+    out = []
+
+    def walk(cls: type, prefix: str) -> None:
+        for f in dataclasses.fields(cls):
+            tp = typing.get_type_hints(cls)[f.name]
+            if dataclasses.is_dataclass(tp):
+                walk(tp, f"{prefix}{f.name}.")
+            elif f.name == key and prefix:
+                out.append(f"'{prefix[:-1]}'")
+
+    walk(SlamConfig, "")
+    return out
 
 
 def _coerce(tp: Any, value: Any, where: str) -> Any:
@@ -213,8 +320,9 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
 
 
 def config_from_dict(data: dict[str, Any] | None) -> SlamConfig:
-    """Defaults overridden by ``data`` (nested mapping); unknown keys are errors."""
-    return _build(SlamConfig, data or {}, "")
+    """Defaults overridden by ``data`` (nested mapping); unknown keys and out-of-range values
+    are errors."""
+    return _build(SlamConfig, data or {}, "").validate()
 
 
 def read_yaml(path: str | Path, what: str = "config") -> Any:

@@ -776,11 +776,12 @@ def _loops_accepted(run_dir: Path) -> int | None:
 
 
 def run_trajectory_path(run_dir: str | Path) -> Path:
-    """``RUN_DIR/trajectory.txt``; raises :class:`TrajectoryError` when the folder or the file
-    is missing."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise TrajectoryError(f"{run_dir}: run folder not found")
+    """``RUN_DIR/trajectory.txt`` of a complete run; raises :class:`RunFolderError` when the
+    folder holds no complete run (no ``metrics.json``: killed, still running, or not a run
+    folder) and :class:`TrajectoryError` when the file is missing."""
+    from slam.run_folder import require_complete
+
+    run_dir = require_complete(run_dir)
     traj_path = run_dir / "trajectory.txt"
     if not traj_path.is_file():
         raise TrajectoryError(

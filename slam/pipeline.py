@@ -1,4 +1,5 @@
-"""The offline SLAM pipeline: read frames, track against the model, fuse, mesh, evaluate."""
+"""The offline SLAM pipeline: a loop of :class:`~slam.system.Slam` over a sequence's frames, with
+checkpoints, then the run folder: trajectory, odometry, mesh, metrics."""
 
 from __future__ import annotations
 
@@ -8,55 +9,39 @@ import json
 import logging
 import resource
 import time
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import open3d as o3d
 
-from slam.backend.loop_closure import LoopCloser, elastic_correction
+from slam.checkpoint import read_checkpoint, write_checkpoint
 from slam.config import SlamConfig
-from slam.data.base import Sequence
+from slam.data.base import Frame, Sequence
+from slam.data.checks import check_sequence
 from slam.errors import FrameReadError, SlamError
-from slam.frontend.tracker import Tracker, TrackingStatus
-from slam.mapping.submaps import SubmapMap
+from slam.frontend.tracker import TrackingStatus
 from slam.mapping.tsdf import write_mesh
+from slam.results import RunResult
+from slam.system import FrameResult, Slam
 from slam.trajectory import Trajectory, atomic_write_text, write_tum
+
+__all__ = ["FrameCallback", "ProgressCallback", "RunResult", "run", "save_run"]
 
 log = logging.getLogger(__name__)
 
-#: Called after every frame with (frames done, frames total, status of the frame).
+#: Called after every frame with (frames done, frames total, status of the frame; None for a
+#: frame that could not be read).
 ProgressCallback = Callable[[int, int, TrackingStatus | None], None]
+#: Called after every frame that was read with the frame and what the system made of it (a
+#: viewer or logger hooks in here).
+FrameCallback = Callable[[Frame, FrameResult], None]
 
 
-@dataclass
-class RunResult:
-    """What a run produces. ``trajectory`` is the final estimate, ``odometry`` the frontend-only
-    one (identical until loop closure corrects poses)."""
-
-    trajectory: Trajectory
-    odometry: Trajectory
-    mesh: o3d.geometry.TriangleMesh | None
-    metrics: dict[str, Any]
-    tracking: list[TrackingStatus] = field(default_factory=list)
-    config: SlamConfig | None = None
-    model: SubmapMap | None = None  # the submaps (odometry frame), for re-meshing and inspection
-    loop_closer: LoopCloser | None = None  # keyframes, pose graph and loop records
-
-    @property
-    def poses(self) -> np.ndarray:
-        return self.trajectory.poses
-
-    @property
-    def timestamps(self) -> np.ndarray:
-        return self.trajectory.timestamps
-
-
-def _frame_indices(sequence: Sequence, cfg: SlamConfig) -> list[int]:
+def frame_indices(sequence: Sequence, cfg: SlamConfig) -> list[int]:
+    """The sequence's frames a run processes (``dataset.stride``, ``dataset.max_frames``)."""
     idx = list(range(0, len(sequence), max(cfg.dataset.stride, 1)))
     if cfg.dataset.max_frames is not None:
         idx = idx[: cfg.dataset.max_frames]
@@ -83,138 +68,88 @@ def run(
     sequence: Sequence,
     config: SlamConfig | None = None,
     progress: ProgressCallback | None = None,
+    run_dir: str | Path | None = None,
+    checkpoint_every: int | None = None,
+    resume: bool = False,
+    on_frame: FrameCallback | None = None,
 ) -> RunResult:
-    """Run SLAM over a sequence. Ground truth, if the sequence has it, is used only to evaluate."""
-    cfg = config or SlamConfig()
-    indices = _frame_indices(sequence, cfg)
+    """Run SLAM over a sequence. Ground truth, if the sequence has it, is used only to evaluate.
+
+    ``run_dir``: the run folder, where finished submaps wait and checkpoints go (default: a
+    temporary folder, no checkpoints). ``checkpoint_every``: write the state to
+    ``run_dir/checkpoint/`` every N frames (0: never; None: 0, or when resuming the
+    interrupted run's N). ``resume``: continue from that checkpoint (the same sequence and
+    config as the interrupted run).
+    """
+    cfg = (config or SlamConfig()).validate()
+    if (checkpoint_every or resume) and run_dir is None:
+        raise SlamError("checkpoints need a run folder: pass run_dir")
+    if checkpoint_every is not None and checkpoint_every < 0:
+        raise SlamError(f"checkpoint_every must be >= 0 frames, got {checkpoint_every}")
+    indices = frame_indices(sequence, cfg)
     if not indices:
         raise SlamError(f"{sequence.path}: no frames to process (check dataset.max_frames/stride)")
-    use_color = sequence.has_color
-    tracker = Tracker(cfg.tracking, use_color=use_color)
-    model = SubmapMap(cfg.mapping, with_color=use_color)
-    closer = LoopCloser(cfg.loop, cfg.backend, cfg.tracking.depth_max_m)
-    kf_rows: list[int] = []  # row of each keyframe in ``poses``
-
-    stamps: list[float] = []
-    poses: list[np.ndarray] = []
-    statuses: list[TrackingStatus] = []
-    skipped: list[dict[str, Any]] = []
-    stage_ms: dict[str, float] = {"load": 0.0, "tracking": 0.0, "integration": 0.0, "loop": 0.0}
-    t_start = time.perf_counter()
-    for n_done, (i, future) in enumerate(_prefetch(sequence, indices), 1):
+    system = Slam(cfg, has_color=sequence.has_color, work_dir=None if run_dir is None else str(run_dir))
+    start = 0
+    if resume:
+        assert run_dir is not None
+        state, start = read_checkpoint(run_dir)
+        if checkpoint_every is None:
+            checkpoint_every = int(state.get("checkpoint_every", 0))
+        system.load_state_dict(state)
+        log.info("resuming %s at frame %d of %d", run_dir, start, len(indices))
+    else:
+        check_sequence(sequence, indices)
+    checkpoint_every = checkpoint_every or 0
+    n_checkpoints, checkpoint_ms = 0, 0.0
+    for done, (i, future) in enumerate(_prefetch(sequence, indices[start:]), start + 1):
         t0 = time.perf_counter()
         try:
             frame = future.result()
         except FrameReadError as exc:
-            log.error("skipping frame %d: %s", i, exc)
-            skipped.append({"index": i, "error": str(exc)})
+            system.skip(i, sequence.timestamp(i), str(exc))
             if progress:
-                progress(n_done, len(indices), None)
+                progress(done, len(indices), None)
             continue
-        t1 = time.perf_counter()
-        T_world_cam, status = tracker.track(frame, model)
-        t2 = time.perf_counter()
-        if status.keyframe:
-            kf = tracker.state.keyframes[-1]
-            kf_rows.append(len(poses))
-            model.on_keyframe(kf.id, kf.T_world_cam)
-            closer.add_keyframe(kf)
-        t3 = time.perf_counter()
-        if status.ok:
-            model.integrate(frame.depth_m, frame.color, frame.K, T_world_cam)
-        t4 = time.perf_counter()
-        stage_ms["load"] += (t1 - t0) * 1e3
-        stage_ms["tracking"] += (t2 - t1) * 1e3
-        stage_ms["loop"] += (t3 - t2) * 1e3
-        stage_ms["integration"] += (t4 - t3) * 1e3
-        stamps.append(frame.timestamp)
-        poses.append(T_world_cam)
-        statuses.append(status)
+        system.stage_ms["load"] += (time.perf_counter() - t0) * 1e3
+        result = system.step(frame)
+        if on_frame:
+            on_frame(frame, result)
         if progress:
-            progress(n_done, len(indices), status)
-    if not poses:
-        raise SlamError(f"{sequence.path}: every frame failed to load; see the log for reasons")
-    t_loop = time.perf_counter() - t_start
-
-    # elastic correction: every frame follows its keyframes' optimised poses
-    odometry = Trajectory(np.array(stamps), np.stack(poses))
-    kfs = closer.keyframes
-    corrected = closer.graph.n_loops > 0
-    if corrected:
-        final = elastic_correction(
-            odometry.poses,
-            kf_rows,
-            [kf.T_world_cam for kf in kfs],
-            [closer.T_world_kf(kf.id) for kf in kfs],
-        )
-        traj = Trajectory(odometry.timestamps.copy(), final)
-    else:
-        traj = Trajectory(odometry.timestamps.copy(), odometry.poses.copy())
-
-    mesh = None
-    map_blocks = model.n_blocks
-    t0 = time.perf_counter()
-    if cfg.output.save_mesh:
-        anchors = (
-            {sm.id: closer.T_world_kf(sm.anchor_kf) for sm in model.submaps} if corrected else None
-        )
-        if len(model.submaps) > 1:
-            volume = model.rebuild(anchors)
-            map_blocks = volume.n_blocks
-            stage_ms["reintegration"] = (time.perf_counter() - t0) * 1e3
-            t0 = time.perf_counter()
-            mesh = volume.extract_mesh()
-        else:
-            mesh = model.extract_mesh(anchors)
-    stage_ms["meshing"] = (time.perf_counter() - t0) * 1e3
-    seconds = time.perf_counter() - t_start
-    n = len(poses)
-    paths = Counter(s.path for s in statuses)
-    metrics: dict[str, Any] = {
-        "sequence": str(sequence.path),
-        "frames": n,
-        "frames_skipped": len(skipped),
-        "skipped": skipped,
-        "seconds": round(seconds, 3),
-        "fps": round(n / t_loop, 3) if t_loop > 0 else None,
-        "fps_tracking_fusion": round(
-            n / max((stage_ms["tracking"] + stage_ms["integration"]) / 1e3, 1e-9), 3
-        ),
-        "stage_ms_per_frame": {
-            k: round(v / n, 3) for k, v in stage_ms.items() if k not in ("meshing", "reintegration")
-        },
-        "stage_ms_total": {
-            **{k: round(v, 1) for k, v in stage_ms.items()},
-            **{k: round(v, 1) for k, v in closer.ms.items()},
-        },
-        "tracking_failures": int(paths.get("lost", 0)),
-        "tracking_paths": dict(paths),
-        "keyframes": len(tracker.state.keyframes),
-        "submaps": len(model.submaps),
-        "loops_accepted": closer.loops_accepted,
-        "loops_rejected": closer.loops_rejected,
-        "loop_detection_ms": round(closer.ms["loop_detection"], 1),
-        "optimisation_ms": round(closer.ms["optimisation"], 1),
-        "optimisations": closer.optimisations,
-        "icp_fitness_mean": round(float(np.mean([s.icp_fitness for s in statuses[1:]] or [0])), 4),
-        "icp_rmse_mean_m": round(float(np.mean([s.icp_rmse_m for s in statuses[1:]] or [0])), 6),
-        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
-        "mesh_vertices": len(mesh.vertices) if mesh is not None else 0,
-        "map_blocks": map_blocks,
-    }
+            progress(done, len(indices), result.status)
+        if checkpoint_every and done % checkpoint_every == 0 and done < len(indices):
+            assert run_dir is not None
+            t1 = time.perf_counter()
+            write_checkpoint(run_dir, system.state_dict(), done, checkpoint_every)
+            n_checkpoints += 1
+            checkpoint_ms += (time.perf_counter() - t1) * 1e3
+    result = system.finish()
+    m = result.metrics
+    m["sequence"] = str(sequence.path)
+    m["checkpoints"] = n_checkpoints
+    m["checkpoint_ms"] = round(checkpoint_ms, 1)
+    if resume:
+        m["resumed_at_frame"] = start
+    m["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
     gt = sequence.ground_truth
     if gt is not None:
-        metrics.update(_evaluate(gt, traj, odometry))
-    log.info(
-        "%s: %d frames in %.1f s (%.1f fps), %d tracking failures%s",
-        sequence.name,
-        n,
-        seconds,
-        metrics["fps"] or 0,
-        metrics["tracking_failures"],
-        f", ATE {metrics['ate_rmse_m']:.4f} m" if "ate_rmse_m" in metrics else "",
+        m.update(_evaluate(gt, result.trajectory, result.odometry))
+    log.info("%s: %s", sequence.name, summary_line(m))
+    return result
+
+
+def summary_line(m: dict[str, Any]) -> str:
+    """One line: frames, speed, lost and skipped frames, loops, ATE."""
+    line = (
+        f"{m['frames']} frames, {m['fps'] or 0:.1f} fps, {len(m['lost_frames'])} lost, "
+        f"{m['frames_skipped']} skipped, {m['relocalisations']} relocalisations, "
+        f"{m['loops_accepted']} loops closed"
     )
-    return RunResult(traj, odometry, mesh, metrics, statuses, cfg, model, closer)
+    if len(m.get("map_segments", [])) > 1:
+        line += f", {len(m['map_segments'])} map segments (not joined)"
+    if "ate_rmse_m" in m:
+        line += f", ATE RMSE {m['ate_rmse_m']:.4f} m (odometry {m['ate_rmse_odometry_m']:.4f} m)"
+    return line
 
 
 def _evaluate(gt: Trajectory, traj: Trajectory, odometry: Trajectory) -> dict[str, Any]:
@@ -237,12 +172,17 @@ def _evaluate(gt: Trajectory, traj: Trajectory, odometry: Trajectory) -> dict[st
 
 
 def save_run(result: RunResult, out_dir: str | Path) -> Path:
-    """Write the run folder: trajectory.txt, odometry.txt, mesh.ply, metrics.json, config.yaml,
-    tracking.csv, pose_graph.g2o, loops.json. Every file is written atomically."""
+    """Write the run folder: trajectory.txt, odometry.txt, mesh.ply, config.yaml, tracking.csv,
+    pose_graph.g2o, loops.json, segment_N.txt (map segments never joined to the main one) and,
+    last, metrics.json, which marks the folder as holding a complete run (any old one is removed
+    first). Every file is written atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").unlink(missing_ok=True)
     write_tum(out / "trajectory.txt", result.trajectory)
     write_tum(out / "odometry.txt", result.odometry)
+    for seg, traj in result.segments.items():
+        write_tum(out / f"segment_{seg}.txt", traj)
     if result.mesh is not None and len(result.mesh.vertices) > 0:
         write_mesh(out / "mesh.ply", result.mesh)
     elif result.mesh is not None:

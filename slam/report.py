@@ -430,7 +430,7 @@ def _tracking_md(run: RunFolder) -> list[str]:
             f"- tracking time per frame: median {np.nanmedian(ms):.1f} ms, 95th percentile "
             f"{np.nanpercentile(ms, 95):.1f} ms, max {np.nanmax(ms):.1f} ms"
         )
-    return out or ["No metrics.json or tracking.csv in the run folder."]
+    return out or ["No run statistics or tracking.csv in the run folder."]
 
 
 def _wall_seconds(metrics: dict[str, Any]) -> float:

@@ -38,3 +38,38 @@ def test_invalid_values_are_errors(data, match):
 def test_missing_file(tmp_path):
     with pytest.raises(ConfigError, match="cannot read"):
         load_config(tmp_path / "none.yaml")
+
+
+@pytest.mark.parametrize(
+    "data, match",
+    [
+        ({"mapping": {"voxel_size_m": 0}}, r"'mapping.voxel_size_m' must be > 0 .*got 0"),
+        ({"mapping": {"voxel_size_m": -0.01}}, r"'mapping.voxel_size_m' must be > 0"),
+        ({"tracking": {"depth_max_m": -1}}, r"'tracking.depth_max_m' must be > tracking.depth_min_m"),
+        ({"tracking": {"iterations": []}}, r"'tracking.iterations' must be a non-empty list"),
+        ({"tracking": {"iterations": [0, 0]}}, r"'tracking.iterations' must be non-negative"),
+        ({"dataset": {"stride": 0}}, r"'dataset.stride' must be >= 1"),
+        ({"dataset": {"max_frames": 0}}, r"'dataset.max_frames' must be >= 1"),
+        ({"backend": {"loop_kernel": "tukey"}}, r"'backend.loop_kernel' must be cauchy, huber"),
+        ({"tracking": {"min_overlap": 2}}, r"'tracking.min_overlap' must be in \[0, 1\]"),
+    ],
+)
+def test_out_of_range_values_name_the_key(data, match):
+    with pytest.raises(ConfigError, match=match):
+        config_from_dict(data)
+
+
+def test_out_of_range_values_in_code_are_caught_by_the_run():
+    import slam
+
+    cfg = SlamConfig()
+    cfg.mapping.voxel_size_m = 0.0
+    with pytest.raises(ConfigError, match="mapping.voxel_size_m"):
+        slam.Slam(cfg)
+
+
+def test_unknown_key_suggests_the_right_one():
+    with pytest.raises(ConfigError, match="did you mean 'voxel_size_m' for 'voxel_size'"):
+        config_from_dict({"mapping": {"voxel_size": 0.01}})
+    with pytest.raises(ConfigError, match="'join_verifications' belongs in section 'loop'"):
+        config_from_dict({"dataset": {"join_verifications": 2}})

@@ -656,14 +656,19 @@ def test_evaluate_run_7scenes_ground_truth_from_loader(tmp_path):
 
 
 def test_evaluate_run_errors(tmp_path):
-    with pytest.raises(TrajectoryError, match="run folder not found"):
+    from slam.errors import RunFolderError
+
+    with pytest.raises(RunFolderError, match="run folder not found"):
         evaluate_run(tmp_path / "nope")
     (tmp_path / "empty").mkdir()
+    with pytest.raises(RunFolderError, match="no metrics.json"):
+        evaluate_run(tmp_path / "empty")
+    (tmp_path / "empty" / "metrics.json").write_text("{}")
     with pytest.raises(TrajectoryError, match="no trajectory.txt"):
         evaluate_run(tmp_path / "empty")
     gt = smooth_gt(n=50)
     run = _make_run(tmp_path / "run", None, gt, gt)
-    (run / "metrics.json").unlink()
+    (run / "metrics.json").write_text("{}")  # names no sequence either
     with pytest.raises(TrajectoryError, match="--gt FILE"):
         evaluate_run(run)
     (run / "config.yaml").write_text(f"dataset:\n  path: {tmp_path / 'moved'}\n")
@@ -797,6 +802,6 @@ def test_cli_eval_argument_errors(tmp_path, files):
     res = runner.invoke(app, ["eval", str(tmp_path), str(files[1])])
     assert res.exit_code == 2 and "is a run folder" in _flat(res.output)
     res = runner.invoke(app, ["eval", str(tmp_path)])
-    assert res.exit_code == 2 and "no trajectory.txt" in _flat(res.output)
+    assert res.exit_code == 2 and "no metrics.json" in _flat(res.output)
     res = runner.invoke(app, ["eval", str(files[0]), str(files[1]), "--rpe-delta", "x"])
     assert res.exit_code == 2 and "cannot read RPE delta" in _flat(res.output)

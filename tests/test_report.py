@@ -198,11 +198,14 @@ def test_report_with_only_a_trajectory(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     write_tum(run / "trajectory.txt", loop_gt(60))
+    with pytest.raises(SlamError, match="no metrics.json"):  # not a complete run
+        write_report(run)
+    (run / "metrics.json").write_text("{}")
     rep = write_report(run)
     assert [p.name for p in rep.plots] == [TOPVIEW_PNG]
     assert_png(rep.plots[0])
     md = rep.markdown.read_text()
-    assert "No loop closure in this run" in md and "No metrics.json or tracking.csv" in md
+    assert "No loop closure in this run" in md and "No run statistics or tracking.csv" in md
 
 
 def test_report_gt_override_and_errors(tmp_path):
@@ -256,6 +259,7 @@ def test_report_on_7scenes_ground_truth(tmp_path):
     write_tum(run / "odometry.txt", drifting(gt, 0.003, seed=3))
     write_tum(run / "trajectory.txt", drifting(gt, 0.0005, seed=4))
     (run / "config.yaml").write_text(f"dataset:\n  path: {seq}\n")
+    (run / "metrics.json").write_text("{}")
     rep = write_report(run)
     assert rep.evaluation is not None and rep.evaluation.final.matched_poses == len(gt)
     assert rep.evaluation.ground_truth == str(seq / "groundtruth.txt")

@@ -2,6 +2,12 @@
 the place-recognition index for revisits, candidates are verified geometrically and checked
 against the current estimate, accepted loops become robust graph edges and the graph is
 optimised. :func:`elastic_correction` then bends every frame pose with its keyframes.
+
+Map segments: when tracking is lost and cannot be relocalised, a new segment starts (its first
+keyframe has no edge to the old ones and its own prior). A verified revisit between two segments
+cannot be checked against odometry (there is none between them), so segments are joined only
+when ``loop.join_verifications`` such revisits agree on where one segment lies in the other;
+the joined segment is moved there rigidly, its prior dropped, and the graph optimised.
 """
 
 from __future__ import annotations
@@ -34,6 +40,18 @@ def _view(kf: Keyframe) -> KeyframeView:
 
 
 @dataclass
+class KeyframeLink:
+    """How a keyframe that does not follow its predecessor by tracking joins the graph:
+    ``relocalisation`` (an edge to keyframe ``other`` with the registration ``T_other_kf``) or
+    ``segment`` (the first keyframe of a new map segment: no edge, its own prior)."""
+
+    kind: str
+    other: int = -1
+    T_other_kf: np.ndarray | None = None
+    information: np.ndarray | None = None
+
+
+@dataclass
 class LoopCloser:
     """Owns the keyframe pose graph, the revisit index and the loop records."""
 
@@ -49,6 +67,11 @@ class LoopCloser:
         default_factory=lambda: {"loop_detection": 0.0, "optimisation": 0.0, "graph": 0.0}
     )
     optimisations: int = 0
+    segment_parent: dict[int, int] = field(default_factory=dict)  # union-find of joined segments
+    joins: list[dict[str, Any]] = field(default_factory=list)
+    _pending_joins: list[tuple[Keyframe, Keyframe, Verification, int]] = field(
+        default_factory=list
+    )
 
     def __post_init__(self) -> None:
         self.graph = PoseGraph(self.backend_cfg)
@@ -84,19 +107,42 @@ class LoopCloser:
             return np.eye(6) / (10 * sigma) ** 2
         return info / sigma**2
 
-    def add_keyframe(self, kf: Keyframe) -> list[dict[str, Any]]:
-        """Add a keyframe (odometry pose in ``kf.T_world_cam``): graph node and odometry edge,
-        then revisit detection. Returns the loop records of this keyframe."""
+    # --- map segments
+    def segment_root(self, segment: int) -> int:
+        """The segment id that stands for all segments joined with ``segment``."""
+        self.segment_parent.setdefault(segment, segment)
+        while self.segment_parent[segment] != segment:
+            segment = self.segment_parent[segment]
+        return segment
+
+    def _same_map(self, a: Keyframe, b: Keyframe) -> bool:
+        return self.segment_root(a.segment) == self.segment_root(b.segment)
+
+    def add_keyframe(
+        self, kf: Keyframe, link: KeyframeLink | None = None
+    ) -> list[dict[str, Any]]:
+        """Add a keyframe (odometry pose in ``kf.T_world_cam``): graph node and its edge (from
+        the previous keyframe by odometry, or as ``link`` says), then revisit detection.
+        Returns the loop records of this keyframe."""
         t0 = time.perf_counter()
-        if not self.keyframes:
+        self.segment_root(kf.segment)
+        if not self.keyframes or (link is not None and link.kind == "segment"):
             self.graph.add_node(kf.id, kf.T_world_cam)
-            self.path_length_m.append(0.0)
+            self.graph.anchors.add(kf.id)  # a prior holds the new segment until it is joined
+            self.path_length_m.append(self.path_length_m[-1] if self.path_length_m else 0.0)
         else:
             prev = self.keyframes[-1]
             T_prev_kf = inv_T(prev.T_world_cam) @ kf.T_world_cam
-            self.graph.add_node(kf.id, self.graph.nodes[prev.id] @ T_prev_kf)
-            info = self._odometry_information(prev, kf, T_prev_kf)
-            self.graph.add_edge(Edge(prev.id, kf.id, T_prev_kf, info, "odometry"))
+            if link is not None and link.kind == "relocalisation":
+                assert link.T_other_kf is not None and link.information is not None
+                self.graph.add_node(kf.id, self.graph.nodes[link.other] @ link.T_other_kf)
+                self.graph.add_edge(
+                    Edge(link.other, kf.id, link.T_other_kf, link.information, "relocalisation")
+                )
+            else:
+                self.graph.add_node(kf.id, self.graph.nodes[prev.id] @ T_prev_kf)
+                info = self._odometry_information(prev, kf, T_prev_kf)
+                self.graph.add_edge(Edge(prev.id, kf.id, T_prev_kf, info, "odometry"))
             self.path_length_m.append(self.path_length_m[-1] + translation_norm(T_prev_kf))
         self.keyframes.append(kf)
         self.ms["graph"] += (time.perf_counter() - t0) * 1e3
@@ -109,11 +155,20 @@ class LoopCloser:
         self.database.observe(kf.features.descriptors)
         candidates = self.database.query(kf.features.descriptors, cfg.max_candidates, cfg.min_score)
         accepted = []
+        joining = []
         for cand_id, score in candidates:
             cand = self.keyframes[cand_id]
             ver = self.verifier.verify(_view(kf), _view(cand))
-            if ver.accepted:
+            same_map = self._same_map(cand, kf)
+            if ver.accepted and same_map:
                 self._check_consistency(cand, kf, ver)
+            elif ver.accepted:
+                ver.accepted = False
+                ver.reason = (
+                    f"verified across map segments {cand.segment} and {kf.segment}: waits for "
+                    f"{self.loop_cfg.join_verifications} agreeing revisits to join them"
+                )
+                joining.append((cand, ver))
             rec = {
                 "query_kf": kf.id,
                 "match_kf": cand.id,
@@ -137,6 +192,8 @@ class LoopCloser:
             )
             if ver.accepted:
                 accepted.append((cand, ver))
+            elif any(c is cand and v is ver for c, v in joining):
+                self._pending_joins.append((cand, kf, ver, len(self.records) + len(records) - 1))
         # index the keyframe that just left the "recent" window
         old = len(self.keyframes) - 1 - cfg.exclude_recent_keyframes
         if old >= 0:
@@ -145,6 +202,7 @@ class LoopCloser:
         self.ms["loop_detection"] += (time.perf_counter() - t0) * 1e3
         self.records.extend(records)
 
+        joined = self._try_join() if joining else False
         if accepted:
             s = self.backend_cfg.loop_sigma_m
             for cand, ver in accepted:
@@ -154,8 +212,79 @@ class LoopCloser:
                     + next(k for k, r in enumerate(records) if r["match_kf"] == cand.id)
                 )
                 self.add_loop(cand.id, kf.id, ver.T_candidate_query, ver.information / s**2, tag)
+        if accepted or joined:
             self.optimize()
         return records
+
+    def _try_join(self) -> bool:
+        """Join two map segments when enough verified revisits between them agree on the
+        transform that puts one into the other's frame. Returns True when segments joined."""
+        c = self.loop_cfg
+        pending = [
+            p for p in self._pending_joins if not self._same_map(p[0], p[1])
+        ]  # pairs whose segments were joined meanwhile are dropped
+        self._pending_joins = pending
+        for a_root, b_root in {
+            (self.segment_root(p[0].segment), self.segment_root(p[1].segment)) for p in pending
+        }:
+            group = [
+                p
+                for p in pending
+                if (self.segment_root(p[0].segment), self.segment_root(p[1].segment))
+                == (a_root, b_root)
+            ]
+            # where segment b's graph frame lies in segment a's, by each revisit
+            moves = [
+                self.T_world_kf(cand.id) @ ver.T_candidate_query @ inv_T(self.T_world_kf(kf.id))
+                for cand, kf, ver, _ in group
+            ]
+            for T_ab in moves:
+                agree = [
+                    j
+                    for j, T in enumerate(moves)
+                    if translation_norm(inv_T(T_ab) @ T) < c.consistency_m
+                    and rotation_angle_deg(inv_T(T_ab) @ T) < c.consistency_deg
+                ]
+                if len(agree) >= c.join_verifications:
+                    self._join(a_root, b_root, T_ab, [group[j] for j in agree])
+                    return True
+        return False
+
+    def _join(
+        self,
+        a_root: int,
+        b_root: int,
+        T_ab: np.ndarray,
+        evidence: list[tuple[Keyframe, Keyframe, Verification, int]],
+    ) -> None:
+        members = {kf.id for kf in self.keyframes if self.segment_root(kf.segment) == b_root}
+        for key in members:
+            self.graph.nodes[key] = T_ab @ self.graph.nodes[key]
+        self.graph.anchors -= members
+        self.segment_parent[b_root] = a_root
+        s = self.backend_cfg.loop_sigma_m
+        for cand, kf, ver, tag in evidence:
+            self.add_loop(cand.id, kf.id, ver.T_candidate_query, ver.information / s**2, tag)
+            if 0 <= tag < len(self.records):
+                self.records[tag]["accepted"] = True
+                self.records[tag]["reason"] = (
+                    f"accepted: joins map segment {kf.segment} to segment {cand.segment}"
+                )
+        self.joins.append(
+            {
+                "segment": b_root,
+                "into": a_root,
+                "keyframe": max(kf.id for _, kf, _, _ in evidence),
+                "revisits": len(evidence),
+            }
+        )
+        self._pending_joins = [p for p in self._pending_joins if not self._same_map(p[0], p[1])]
+        log.info(
+            "map segment %d joined to segment %d by %d agreeing revisits",
+            b_root,
+            a_root,
+            len(evidence),
+        )
 
     def _check_consistency(self, cand: Keyframe, kf: Keyframe, ver: Verification) -> None:
         """Reject a loop whose relative pose disagrees with the current estimate by more than
@@ -215,12 +344,47 @@ class LoopCloser:
     def loops_json(self) -> dict[str, Any]:
         return {"candidates": self.records}
 
+    # --- checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        """The graph, loop records, path lengths, segment joins and the place-recognition
+        index; keyframes are saved by the caller (they are shared with the tracker) and named
+        here by id."""
+        return {
+            "graph": self.graph.state_dict(),
+            "database": self.database,
+            "keyframes": [kf.id for kf in self.keyframes],
+            "path_length_m": list(self.path_length_m),
+            "records": self.records,
+            "ms": dict(self.ms),
+            "optimisations": self.optimisations,
+            "segment_parent": dict(self.segment_parent),
+            "joins": self.joins,
+            "pending_joins": [(c.id, k.id, v, tag) for c, k, v, tag in self._pending_joins],
+            "verifier_rng": self.verifier._rng.bit_generator.state,
+        }
+
+    def load_state_dict(self, state: dict[str, Any], keyframes: dict[int, Keyframe]) -> None:
+        self.graph = PoseGraph.from_state_dict(self.backend_cfg, state["graph"])
+        self.database = state["database"]
+        self.keyframes = [keyframes[i] for i in state["keyframes"]]
+        self.path_length_m = list(state["path_length_m"])
+        self.records = state["records"]
+        self.ms = dict(state["ms"])
+        self.optimisations = state["optimisations"]
+        self.segment_parent = dict(state["segment_parent"])
+        self.joins = state["joins"]
+        self._pending_joins = [
+            (keyframes[c], keyframes[k], v, tag) for c, k, v, tag in state["pending_joins"]
+        ]
+        self.verifier._rng.bit_generator.state = state["verifier_rng"]
+
 
 def elastic_correction(
     odometry: np.ndarray,
     kf_positions: list[int],
     T_world_kf_odometry: list[np.ndarray],
     T_world_kf_corrected: list[np.ndarray],
+    runs: np.ndarray | None = None,
 ) -> np.ndarray:
     """Corrected poses of every frame from the corrected keyframe poses.
 
@@ -229,22 +393,28 @@ def elastic_correction(
     pose relative to each of them, giving two estimates ``T_a' T_a^-1 T`` and ``T_b' T_b^-1 T``;
     it takes their SE(3) interpolation at its fraction of the way from a to b, so the
     trajectory bends smoothly and keyframes land exactly on their optimised poses.
+
+    ``runs`` (N,): the tracking run of each frame (a run ends where tracking was lost). Frames
+    follow keyframes of their own run only: odometry says nothing across a loss. Every run
+    starts with a keyframe.
     """
     out = odometry.copy()
     if not kf_positions:
         return out
+    runs = np.zeros(len(odometry), int) if runs is None else np.asarray(runs)
     corr = [Tc @ inv_T(To) for Tc, To in zip(T_world_kf_corrected, T_world_kf_odometry)]
     n = len(odometry)
-    first, last = kf_positions[0], kf_positions[-1]
-    for f in range(0, first):
+    for f in range(0, kf_positions[0]):
         out[f] = corr[0] @ odometry[f]
-    for f in range(last, n):
-        out[f] = corr[-1] @ odometry[f]
-    for k in range(len(kf_positions) - 1):
-        a, b = kf_positions[k], kf_positions[k + 1]
-        for f in range(a, b):
+    for k, a in enumerate(kf_positions):
+        nxt = kf_positions[k + 1] if k + 1 < len(kf_positions) else n
+        same_run = k + 1 < len(kf_positions) and runs[nxt] == runs[a]
+        for f in range(a, nxt):
             Ta = corr[k] @ odometry[f]
+            if not same_run:
+                out[f] = Ta
+                continue
             Tb = corr[k + 1] @ odometry[f]
-            s = (f - a) / (b - a)
+            s = (f - a) / (nxt - a)
             out[f] = Ta @ exp_se3(s * log_se3(inv_T(Ta) @ Tb))
     return out

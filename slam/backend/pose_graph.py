@@ -58,6 +58,9 @@ class PoseGraph:
         self.cfg = cfg
         self.nodes: dict[int, np.ndarray] = {}
         self.edges: list[Edge] = []
+        # nodes held by a prior: the first node, and the first node of each map segment not yet
+        # joined to the others (each connected component needs one to fix its gauge)
+        self.anchors: set[int] = set()
 
     # --- building
     def add_node(self, key: int, T_world_node: np.ndarray) -> None:
@@ -93,12 +96,12 @@ class PoseGraph:
         values = gtsam.Values()
         for key, T in self.nodes.items():
             values.insert(key, gtsam.Pose3(T))
-        first = min(self.nodes)
-        graph.add(
-            gtsam.PriorFactorPose3(
-                first, gtsam.Pose3(self.nodes[first]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
+        for key in self.anchors or {min(self.nodes)}:
+            graph.add(
+                gtsam.PriorFactorPose3(
+                    key, gtsam.Pose3(self.nodes[key]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
+                )
             )
-        )
         for e in self.edges:
             graph.add(gtsam.BetweenFactorPose3(e.i, e.j, gtsam.Pose3(e.T_i_j), self._noise(e)))
         return graph, values
@@ -146,6 +149,7 @@ class PoseGraph:
     # --- persistence
     def state_dict(self) -> dict:
         return {
+            "anchors": sorted(self.anchors),
             "nodes": {k: v.tolist() for k, v in self.nodes.items()},
             "edges": [
                 {
@@ -154,6 +158,7 @@ class PoseGraph:
                     "T_i_j": e.T_i_j.tolist(),
                     "information": e.information.tolist(),
                     "kind": e.kind,
+                    "tag": e.tag,
                 }
                 for e in self.edges
             ],
@@ -164,9 +169,17 @@ class PoseGraph:
         g = cls(cfg)
         for k, v in state["nodes"].items():
             g.add_node(int(k), np.array(v))
+        g.anchors = {int(k) for k in state.get("anchors", [])}
         for e in state["edges"]:
             g.add_edge(
-                Edge(e["i"], e["j"], np.array(e["T_i_j"]), np.array(e["information"]), e["kind"])
+                Edge(
+                    e["i"],
+                    e["j"],
+                    np.array(e["T_i_j"]),
+                    np.array(e["information"]),
+                    e["kind"],
+                    e.get("tag", -1),
+                )
             )
         return g
 
@@ -179,7 +192,8 @@ class PoseGraph:
             v = pose_to_tum(self.nodes[key])
             pose = " ".join(f"{x:.9f}" for x in v)
             lines.append(f"VERTEX_SE3:QUAT {key} {pose}")
-        lines.append(f"FIX {min(self.nodes)}" if self.nodes else "")
+        for key in sorted(self.anchors or ({min(self.nodes)} if self.nodes else set())):
+            lines.append(f"FIX {key}")
         iu = np.triu_indices(6)
         for e in self.edges:
             v = pose_to_tum(e.T_i_j)

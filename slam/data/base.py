@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slam.errors import CalibrationError
+from slam.errors import CalibrationError, FrameSizeError
 from slam.trajectory import Trajectory
 
 
@@ -112,7 +112,16 @@ class Sequence(ABC):
             index += n
         if not 0 <= index < n:
             raise IndexError(f"frame index {index} out of range for {n} frames")
-        return self._read(index)
+        frame = self._read(index)
+        c = self.calibration
+        if frame.depth_m.shape != (c.height, c.width):
+            h, w = frame.depth_m.shape[:2]
+            raise FrameSizeError(
+                f"frame {index}: depth image is {w}x{h} but the calibration says "
+                f"{c.width}x{c.height}; fix width/height (and fx, fy, cx, cy) in the sequence's "
+                "calibration.yaml or in the config's dataset.calibration"
+            )
+        return frame
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):

@@ -30,6 +30,11 @@ def open_sequence(
 ) -> Sequence:
     """Open a sequence folder; the layout is detected unless given. Errors before any work."""
     path = Path(path).expanduser()
+    if path.is_file():
+        raise DatasetError(
+            f"{path} is a file, not a sequence folder: give the folder that holds rgb.txt and "
+            "depth.txt (TUM RGB-D) or the frame-XXXXXX images (7-Scenes)"
+        )
     if not path.is_dir():
         raise DatasetError(f"{path}: sequence folder not found")
     if layout not in LAYOUTS:

@@ -23,7 +23,12 @@ def read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
         raise DatasetError(f"{path}: list file not found (TUM layout needs rgb.txt and depth.txt)")
     stamps: list[float] = []
     names: list[str] = []
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    linenos: list[int] = []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot read the list: {exc}") from exc
+    for lineno, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -34,9 +39,20 @@ def read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
             stamps.append(float(parts[0]))
         except ValueError as exc:
             raise DatasetError(f"{path}:{lineno}: bad timestamp {parts[0]!r}") from exc
+        if not np.isfinite(stamps[-1]):
+            raise DatasetError(f"{path}:{lineno}: bad timestamp {parts[0]!r}")
         names.append(parts[1])
+        linenos.append(lineno)
     if not stamps:
         raise DatasetError(f"{path}: no entries")
+    seen: dict[float, int] = {}
+    for lineno, t in zip(linenos, stamps):
+        if t in seen:
+            raise DatasetError(
+                f"{path}: lines {seen[t]} and {lineno} have the same timestamp {t:.6f}; each "
+                "image needs its own time: remove or correct the duplicate line"
+            )
+        seen[t] = lineno
     order = np.argsort(stamps, kind="stable")
     return np.asarray(stamps)[order], [names[i] for i in order]
 
@@ -182,6 +198,11 @@ class TumSequence(Sequence):
 
     def timestamps(self) -> np.ndarray:
         return self._stamps.copy()
+
+    def files(self, index: int) -> tuple[Path | None, Path]:
+        """(colour image or None for depth-only, depth image) of frame ``index``."""
+        rgb = None if self._rgb is None else self.path / self._rgb[index]
+        return rgb, self.path / self._depth[index]
 
     def _read(self, index: int) -> Frame:
         depth = read_depth(self.path / self._depth[index], index, self.calibration.depth_scale)

@@ -21,7 +21,15 @@ from slam.frontend.pointcloud import (
     scale_intrinsics,
 )
 from slam.frontend.ransac import RansacResult, ransac_rigid
-from slam.geometry import inv_T, orthonormalize, rotation_angle_deg, translation_norm
+from slam.geometry import (
+    exp_se3,
+    inv_T,
+    log_se3,
+    orthonormalize,
+    rotation_angle_deg,
+    transform_points,
+    translation_norm,
+)
 from slam.mapping.tsdf import TSDFVolume
 
 log = logging.getLogger(__name__)
@@ -40,20 +48,28 @@ class Keyframe:
     depth_m: np.ndarray | None = None
     K: np.ndarray | None = None
     id: int = -1
+    segment: int = 0  # the map segment (tracking run from a fresh start) it belongs to
 
 
 @dataclass
 class TrackingStatus:
     """Per-frame tracking record (written to ``tracking.csv``; summarised in ``metrics.json``).
 
-    ``path``: ``init`` (first frame), ``icp`` (ICP from the motion prediction), ``ransac+icp``
-    (ICP seeded by RANSAC), ``ransac`` (RANSAC pose, ICP rejected), ``lost`` (no estimate passed
-    the checks; the prediction is used and the frame is not fused).
+    ``path``: ``init`` (first frame of a map segment), ``icp`` (ICP from the motion
+    prediction), ``ransac+icp`` (ICP seeded by RANSAC), ``reloc`` (relocalised against a
+    keyframe after tracking was lost), ``lost`` (no pose: no usable depth, or no estimate
+    passed the checks; the frame is neither fused nor written to the trajectory). ``reason``
+    says why a frame is lost; ``gap``: the frame follows a gap (skipped frames, a timestamp
+    jump), so its pose had to be verified.
     """
 
     index: int
     path: str
     ok: bool
+    timestamp: float = 0.0
+    reason: str = ""
+    gap: bool = False
+    segment: int = 0
     icp_fitness: float = 0.0
     icp_rmse_m: float = 0.0
     ransac_inliers: int = 0
@@ -66,6 +82,25 @@ class TrackingStatus:
 
     def as_row(self) -> dict:
         return asdict(self)
+
+
+#: The constant-velocity prediction extrapolates over at most this many usual frame intervals.
+MAX_EXTRAPOLATION = 30.0
+
+
+def scale_motion(T: np.ndarray, factor: float) -> np.ndarray:
+    """The motion ``T`` continued for ``factor`` times as long (constant twist):
+    ``exp(factor * log(T))``. Used to predict across a longer (or shorter) frame interval."""
+    if abs(factor - 1.0) < 1e-6:
+        return T
+    return exp_se3(factor * log_se3(T))
+
+
+def usable_depth_fraction(depth_m: np.ndarray, depth_min_m: float, depth_max_m: float) -> float:
+    """Fraction of pixels with a depth inside the tracking range."""
+    return float(np.count_nonzero((depth_m > depth_min_m) & (depth_m < depth_max_m))) / max(
+        depth_m.size, 1
+    )
 
 
 @dataclass
@@ -130,20 +165,78 @@ class Tracker:
         )
         return res, len(matches)
 
-    def track(self, frame: Frame, model: TSDFVolume) -> tuple[np.ndarray, TrackingStatus]:
-        """Pose of ``frame``; the caller fuses it into ``model`` when ``status.ok``."""
+    @property
+    def initialised(self) -> bool:
+        """True once a frame has set the pose (and until the tracker is lost)."""
+        return self.state.T_world_prev is not None
+
+    def tracking_depth(self, frame: Frame) -> np.ndarray:
+        """The frame's depth as tracking uses it (tracking resolution, filtered)."""
+        return self._tracking_depth(frame.depth_m)
+
+    def features(self, frame: Frame) -> FeatureSet | None:
+        """ORB features of the frame lifted by its depth (None without colour)."""
+        return self._features(frame)
+
+    def reset(
+        self,
+        frame: Frame,
+        T_world_cam: np.ndarray,
+        path: str = "init",
+        segment: int = 0,
+        depth: np.ndarray | None = None,
+        feats: FeatureSet | None = None,
+    ) -> TrackingStatus:
+        """(Re)start tracking at ``frame`` with a known pose: the first frame of a map segment
+        (``init``) or a relocalised frame (``reloc``). The frame becomes a keyframe; motion
+        prediction starts from rest."""
+        t0 = time.perf_counter()
+        st = self.state
+        T = orthonormalize(np.asarray(T_world_cam, float))
+        status = TrackingStatus(frame.index, path, True, frame.timestamp, segment=segment)
+        if feats is None:
+            feats = self._features(frame)
+        depth = self._tracking_depth(frame.depth_m) if depth is None else depth
+        st.T_world_prev = T
+        st.velocity = np.eye(4)
+        st.prev_depth = depth
+        st.prev_pyramid = None
+        st.prev_features = (
+            Keyframe(frame.index, frame.timestamp, T.copy(), feats)
+            if feats is not None and len(feats) > 0
+            else None
+        )
+        self._add_keyframe(frame, T, feats, status, depth, segment)
+        status.ms = (time.perf_counter() - t0) * 1e3
+        return status
+
+    def mark_lost(self) -> None:
+        """Forget the previous frame (the next one cannot be aligned to it); the last pose and
+        velocity stay, to extrapolate from when tracking is tried again."""
+        st = self.state
+        st.prev_depth = None
+        st.prev_pyramid = None
+        st.prev_features = None
+
+    def track(
+        self,
+        frame: Frame,
+        model: TSDFVolume,
+        verify: bool = False,
+        dt_ratio: float = 1.0,
+        segment: int = 0,
+    ) -> tuple[np.ndarray | None, TrackingStatus]:
+        """Pose of ``frame`` (None when lost); the caller fuses it into ``model`` when
+        ``status.ok``. ``dt_ratio``: this frame's interval over the usual one (the
+        constant-velocity prediction is scaled by it). ``verify``: the frame follows a gap,
+        so the prediction is not trusted: RANSAC and the alternative guesses are always tried,
+        and the pose is accepted only when ORB matches support it (or, without features, when
+        the depth overlaps the model well). Call :meth:`reset` for the first frame."""
         t0 = time.perf_counter()
         cfg = self.cfg
         st = self.state
         if st.T_world_prev is None:
-            T = np.eye(4)
-            status = TrackingStatus(frame.index, "init", True)
-            feats = self._features(frame)
-            st.prev_depth = self._tracking_depth(frame.depth_m)
-            self._add_keyframe(frame, T, feats, status, st.prev_depth)
-            st.T_world_prev = T
-            status.ms = (time.perf_counter() - t0) * 1e3
-            return T, status
+            raise RuntimeError("Tracker.track before Tracker.reset (no pose to start from)")
 
         T_prev = st.T_world_prev
         factor = cfg.downsample
@@ -151,14 +244,15 @@ class Tracker:
         depth = self._tracking_depth(frame.depth_m)
         h, w = depth.shape
 
-        velocity = st.velocity
-        large = (
+        velocity = scale_motion(st.velocity, float(np.clip(dt_ratio, 0.0, MAX_EXTRAPOLATION)))
+        large = verify or (
             translation_norm(velocity) > cfg.large_motion_translation_m
             or rotation_angle_deg(velocity) > cfg.large_motion_rotation_deg
         )
         feats: FeatureSet | None = None
         ransac: RansacResult | None = None
-        status = TrackingStatus(frame.index, "icp", False)
+        status = TrackingStatus(frame.index, "icp", False, frame.timestamp, gap=verify)
+        status.segment = segment
 
         levels = len(cfg.iterations)
         depth_pyr = depth_pyramid(depth, levels)  # built once: every ICP of this frame uses it
@@ -281,41 +375,72 @@ class Tracker:
         status.icp_rmse_m = float(icp.inlier_rmse)
         status.overlap = round(score, 4)
         if not ok:
-            T = T_prev @ velocity
-            status.path = "lost"
-            log.warning(
-                "frame %d: tracking lost (overlap %.2f, ICP fitness %.2f, RANSAC inliers %d); "
-                "using the constant-velocity prediction",
-                frame.index,
-                score,
-                icp.fitness,
-                status.ransac_inliers,
+            status.reason = (
+                f"overlap {score:.2f} (min {cfg.min_overlap}), ICP fitness {icp.fitness:.2f} "
+                f"(min {cfg.min_fitness}), RANSAC inliers {status.ransac_inliers}"
             )
-        T = orthonormalize(T)
+        elif verify:
+            if feats is None:
+                feats = self._features(frame)
+            support = self._feature_support(feats, T)
+            if support < cfg.verify_min_matches and score < cfg.hypothesis_overlap:
+                ok = False
+                status.reason = (
+                    f"unverified after a gap: {support} ORB matches agree with the pose "
+                    f"(min {cfg.verify_min_matches}) and overlap {score:.2f} < "
+                    f"{cfg.hypothesis_overlap}"
+                )
         status.ok = ok
-        st.velocity = inv_T(T_prev) @ T if ok else np.eye(4)
+        if not ok:
+            status.path = "lost"
+            log.info("frame %d: tracking lost: %s", frame.index, status.reason)
+            self.mark_lost()
+            status.ms = (time.perf_counter() - t0) * 1e3
+            return None, status
+        T = orthonormalize(T)
+        st.velocity = scale_motion(inv_T(T_prev) @ T, 1.0 / float(np.clip(dt_ratio, 0.2, 5.0)))
         st.T_world_prev = T
-        st.prev_depth = depth if ok else None
-        st.prev_pyramid = depth_pyr if ok else None
+        st.prev_depth = depth
+        st.prev_pyramid = depth_pyr
         st.prev_features = (
             Keyframe(frame.index, frame.timestamp, T.copy(), feats)
-            if ok and feats is not None and len(feats) > 0
+            if feats is not None and len(feats) > 0
             else None
         )
 
         kf = self.last_keyframe
-        if ok and kf is not None:
+        if kf is not None:
             rel = inv_T(kf.T_world_cam) @ T
             if (
                 translation_norm(rel) > cfg.keyframe_translation_m
                 or rotation_angle_deg(rel) > cfg.keyframe_rotation_deg
                 or status.path.startswith("ransac")
+                or verify
             ):
                 if feats is None:
                     feats = self._features(frame)
-                self._add_keyframe(frame, T, feats, status, depth)
+                self._add_keyframe(frame, T, feats, status, depth, segment)
         status.ms = (time.perf_counter() - t0) * 1e3
         return T, status
+
+    def _feature_support(self, feats: FeatureSet | None, T_world_cam: np.ndarray) -> int:
+        """How many ORB matches between the frame and the previous frame or a recent keyframe
+        agree with the pose (3D points within the RANSAC threshold): independent evidence
+        for a pose found by ICP. The best over those candidates."""
+        if feats is None or len(feats) == 0:
+            return 0
+        r = self.cfg.ransac
+        best = 0
+        for kf in self._ransac_candidates():
+            m = match_descriptors(feats.descriptors, kf.features.descriptors, r.ratio)
+            if len(m) < r.min_inliers:
+                continue
+            T_kf_cur = inv_T(kf.T_world_cam) @ T_world_cam
+            d = transform_points(T_kf_cur, feats.points_cam[m[:, 0]]) - kf.features.points_cam[
+                m[:, 1]
+            ]
+            best = max(best, int(np.count_nonzero(np.linalg.norm(d, axis=1) < r.inlier_threshold_m)))
+        return best
 
     def _ransac_candidates(self) -> list[Keyframe]:
         """What RANSAC tries against: the previous frame, then the recent keyframes (newest
@@ -350,6 +475,7 @@ class Tracker:
         feats: FeatureSet | None,
         status: TrackingStatus,
         depth: np.ndarray,
+        segment: int = 0,
     ) -> None:
         kfs = self.state.keyframes
         kfs.append(
@@ -361,6 +487,7 @@ class Tracker:
                 depth,
                 scale_intrinsics(frame.K, self.cfg.downsample),
                 len(kfs),
+                segment,
             )
         )
         status.keyframe = True

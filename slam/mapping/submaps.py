@@ -41,9 +41,10 @@ def _write(arrays: dict[str, np.ndarray], path: Path) -> None:
     np.savez(path, **arrays)
 
 
-def _cleanup(writer: ThreadPoolExecutor, folder: Path) -> None:
+def _cleanup(writer: ThreadPoolExecutor, folder: Path | None) -> None:
     writer.shutdown(wait=True)
-    shutil.rmtree(folder, ignore_errors=True)
+    if folder is not None:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _color_u8(r: Rendering) -> np.ndarray | None:
@@ -62,6 +63,9 @@ class Submap:
     T_anchor_views: list[np.ndarray] = field(default_factory=list)  # every fused frame
     path: Path | None = None
     saving: Future | None = None  # the background write to ``path``, while it runs
+    # its first frames are fused into the previous submap too (False when the new submap
+    # starts after a relocalisation or in a new map segment: the two are not a continuous run)
+    overlaps_previous: bool = True
 
     @property
     def n_frames(self) -> int:
@@ -75,7 +79,11 @@ class SubmapMap:
     tracking never faces an empty model; the first ``submap_overlap_frames`` frames of a new
     submap are fused into the previous one too, so neighbouring submaps overlap."""
 
-    def __init__(self, cfg: MappingConfig, with_color: bool = True) -> None:
+    def __init__(
+        self, cfg: MappingConfig, with_color: bool = True, spill_dir: str | Path | None = None
+    ) -> None:
+        """``spill_dir``: where finished submaps wait (a run folder's ``submaps/``, kept for
+        resuming); default a temporary folder removed with this object."""
         self.cfg = cfg
         self.with_color = with_color
         self.submaps: list[Submap] = []
@@ -83,10 +91,16 @@ class SubmapMap:
         self._size: tuple[int, int] | None = None
         self._spill_dir: Path | None = None
         self._writer: ThreadPoolExecutor | None = None
-        if cfg.spill_submaps and cfg.submap_keyframes > 0:
-            self._spill_dir = Path(tempfile.mkdtemp(prefix="slam-submaps-"))
+        if cfg.spill_submaps:
+            if spill_dir is None:
+                self._spill_dir = Path(tempfile.mkdtemp(prefix="slam-submaps-"))
+                cleanup_dir: Path | None = self._spill_dir
+            else:
+                self._spill_dir = Path(spill_dir)
+                self._spill_dir.mkdir(parents=True, exist_ok=True)
+                cleanup_dir = None
             self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam-spill")
-            weakref.finalize(self, _cleanup, self._writer, self._spill_dir)
+            weakref.finalize(self, _cleanup, self._writer, cleanup_dir)
 
     def volume(self, sm: Submap) -> TSDFVolume:
         """The submap's volume, loaded from disk when it was spilled."""
@@ -121,7 +135,20 @@ class SubmapMap:
     def active(self) -> Submap:
         return self.submaps[-1]
 
-    def start_submap(self, anchor_kf: int, T_world_anchor: np.ndarray) -> Submap:
+    def start_submap(
+        self,
+        anchor_kf: int,
+        T_world_anchor: np.ndarray,
+        seed_from: Submap | None = None,
+        seed_views: list[np.ndarray] | None = None,
+        continuous: bool = True,
+    ) -> Submap:
+        """Start a submap anchored at a keyframe. ``continuous`` (tracking went on without a
+        break): it is seeded with the previous submap seen from that one's last viewpoints, and
+        its first frames are fused into the previous one too. Otherwise (after a
+        relocalisation, or in a new map segment) the previous submap is finished at once, and
+        the new one is seeded from ``seed_from`` (the submap of the keyframe the frame was
+        relocalised against) rendered from ``seed_views`` (odometry-frame poses), if given."""
         capacity = None  # the first submap: mapping.block_count
         if self.submaps:
             # allocating the hash map costs ~7 ms per 1000 blocks and growing it later costs
@@ -133,27 +160,44 @@ class SubmapMap:
             anchor_kf,
             np.asarray(T_world_anchor, float).copy(),
             TSDFVolume(self.cfg, self.with_color, capacity),
+            overlaps_previous=continuous and bool(self.submaps),
         )
-        if self.submaps:
-            self._seed(sm, self.submaps[-1])
+        if self.submaps and continuous:
+            prev = self.submaps[-1]
+            views = [prev.T_world_anchor @ T for T in prev.T_anchor_views[-self.cfg.submap_seed_views :]]
+            self._seed(sm, prev, views)
+        elif self.submaps:
+            self._spill(self.submaps[-1])
+            if seed_from is not None and seed_views:
+                self._seed(sm, seed_from, seed_views)
         self.submaps.append(sm)
         log.debug("submap %d anchored at keyframe %d", sm.id, anchor_kf)
         return sm
 
-    def _seed(self, new: Submap, prev: Submap) -> None:
-        """Fuse ray-casts of ``prev`` from its last viewpoints into ``new`` (anchor frames
-        differ: both are odometry-frame poses, so the relative transform is exact)."""
+    def _seed(self, new: Submap, source: Submap, T_world_views: list[np.ndarray]) -> None:
+        """Fuse ray-casts of ``source`` from the given viewpoints into ``new`` (both anchors are
+        odometry-frame poses, so the relative transform is exact)."""
         if self._K is None or self._size is None or new.volume is None:
             return
         f = max(int(self.cfg.reintegration_downsample), 1)
         K = scale_intrinsics(self._K, f)
         w, h = self._size[0] // f, self._size[1] // f
-        T_new_prev = inv_T(new.T_world_anchor) @ prev.T_world_anchor
-        volume = self.volume(prev)
-        for T_prev_view in prev.T_anchor_views[-self.cfg.submap_seed_views :]:
-            r = volume.render(K, w, h, T_prev_view, with_normals=False)
+        volume = self.volume(source)
+        for T_world_view in T_world_views:
+            r = volume.render(K, w, h, inv_T(source.T_world_anchor) @ T_world_view, False)
             if (r.depth_m > 0).any():
-                new.volume.integrate(r.depth_m, _color_u8(r), K, T_new_prev @ T_prev_view)
+                new.volume.integrate(
+                    r.depth_m, _color_u8(r), K, inv_T(new.T_world_anchor) @ T_world_view
+                )
+
+    def submap_of_keyframe(self, kf_id: int) -> Submap | None:
+        """The submap a keyframe's frame was fused into (the last one anchored at or before
+        it)."""
+        found = None
+        for sm in self.submaps:
+            if sm.anchor_kf <= kf_id:
+                found = sm
+        return found
 
     def on_keyframe(self, kf_id: int, T_world_kf: np.ndarray) -> bool:
         """Start a new submap at this keyframe when the active one has ``submap_keyframes``
@@ -182,7 +226,10 @@ class SubmapMap:
         if self._K is None:
             self._K, self._size = K.copy(), (depth_m.shape[1], depth_m.shape[0])
         targets = [self.active]
-        overlap = len(self.submaps) > 1 and self.active.n_frames < self.cfg.submap_overlap_frames
+        overlap = (
+            self.active.overlaps_previous
+            and self.active.n_frames < self.cfg.submap_overlap_frames
+        )
         if overlap:
             targets.append(self.submaps[-2])
         for sm in targets:
@@ -207,9 +254,13 @@ class SubmapMap:
         return sum(sm.volume.n_blocks for sm in self.submaps if sm.volume is not None)
 
     # --- the corrected global model
-    def rebuild(self, T_world_anchors: dict[int, np.ndarray] | None = None) -> TSDFVolume:
-        """Re-fuse every submap into one volume, each under ``T_world_anchors[submap.id]``
-        (default: the anchors' odometry poses)."""
+    def rebuild(
+        self,
+        T_world_anchors: dict[int, np.ndarray] | None = None,
+        include: set[int] | None = None,
+    ) -> TSDFVolume:
+        """Re-fuse every submap (or those whose ids are in ``include``) into one volume, each
+        under ``T_world_anchors[submap.id]`` (default: the anchors' odometry poses)."""
         cfg = self.cfg
         out = TSDFVolume(cfg, self.with_color)
         # a rendered view shows only surfaces that passed the ray-caster's weight threshold in
@@ -222,6 +273,8 @@ class SubmapMap:
         w, h = self._size[0] // f, self._size[1] // f
         stride = max(int(cfg.reintegration_stride), 1)
         for sm in self.submaps:
+            if include is not None and sm.id not in include:
+                continue
             T_world_anchor = (T_world_anchors or {}).get(sm.id, sm.T_world_anchor)
             views = sm.T_anchor_views[::stride]
             if sm.T_anchor_views and views[-1] is not sm.T_anchor_views[-1]:
@@ -237,13 +290,59 @@ class SubmapMap:
         return out
 
     def extract_mesh(
-        self, T_world_anchors: dict[int, np.ndarray] | None = None
+        self,
+        T_world_anchors: dict[int, np.ndarray] | None = None,
+        include: set[int] | None = None,
     ) -> o3d.geometry.TriangleMesh:
         """Marching cubes on the global model under the given anchor poses. A single submap is
         meshed directly (and moved rigidly) instead of being re-fused."""
-        if len(self.submaps) == 1:
-            sm = self.submaps[0]
+        chosen = [sm for sm in self.submaps if include is None or sm.id in include]
+        if len(chosen) == 1:
+            sm = chosen[0]
             mesh = self.volume(sm).extract_mesh()
             T = (T_world_anchors or {}).get(sm.id, sm.T_world_anchor)
             return mesh.transform(T)
-        return self.rebuild(T_world_anchors).extract_mesh()
+        return self.rebuild(T_world_anchors, include).extract_mesh()
+
+    # --- checkpoints
+    def state_dict(self) -> dict:
+        """Everything needed to rebuild this object: submap records, and the blocks of the
+        submaps held in memory (``volume`` arrays); spilled submaps are referenced by path
+        (their files are final once written: :meth:`flush` is called first)."""
+        self.flush()
+        return {
+            "K": self._K,
+            "size": self._size,
+            "submaps": [
+                {
+                    "id": sm.id,
+                    "anchor_kf": sm.anchor_kf,
+                    "T_world_anchor": sm.T_world_anchor,
+                    "T_anchor_views": np.array(sm.T_anchor_views).reshape(-1, 4, 4),
+                    "path": None if sm.path is None else str(sm.path),
+                    "volume": None if sm.volume is None else sm.volume.to_arrays(),
+                    "overlaps_previous": sm.overlaps_previous,
+                }
+                for sm in self.submaps
+            ],
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self._K = state["K"]
+        self._size = None if state["size"] is None else tuple(state["size"])
+        self.submaps = []
+        for d in state["submaps"]:
+            volume = d["volume"]
+            self.submaps.append(
+                Submap(
+                    d["id"],
+                    d["anchor_kf"],
+                    np.asarray(d["T_world_anchor"]),
+                    None
+                    if volume is None
+                    else TSDFVolume.from_arrays(volume, self.cfg, self.with_color),
+                    list(np.asarray(d["T_anchor_views"])),
+                    None if d["path"] is None else Path(d["path"]),
+                    overlaps_previous=d["overlaps_previous"],
+                )
+            )

@@ -42,6 +42,12 @@ def _pixel_centre_shift(K: np.ndarray, shift_px: float) -> np.ndarray:
     return K
 
 
+def _range_map_factor(width: int, height: int) -> int:
+    """Down-sampling factor of the ray-caster's range map: 8 where it divides the image size.
+    Open3D's ray_cast does not return when it does not (seen with 80x60 images and 8)."""
+    return next(f for f in (8, 4, 2, 1) if width % f == 0 and height % f == 0)
+
+
 def _tensor(a: np.ndarray, dtype=None) -> o3c.Tensor:
     return o3c.Tensor(np.ascontiguousarray(a if dtype is None else a.astype(dtype)))
 
@@ -81,7 +87,10 @@ class TSDFVolume:
         K: np.ndarray,
         T_world_cam: np.ndarray,
     ) -> None:
-        """Fuse one frame (depth in metres, colour HxWx3 uint8 RGB or None) seen from a pose."""
+        """Fuse one frame (depth in metres, colour HxWx3 uint8 RGB or None) seen from a pose.
+        A frame without any depth in range changes nothing."""
+        if not np.any((depth_m > 0) & (depth_m < self.cfg.depth_max_m)):
+            return  # Open3D raises "No block is touched" on it
         # uint16 depth (0.2 mm steps) and uint8 colour: the kernel's native input pair, which
         # avoids converting every colour pixel to float
         depth_u16 = np.clip(np.round(depth_m * _DEPTH_SCALE), 0, 65535).astype(np.uint16)
@@ -165,7 +174,7 @@ class TSDFVolume:
             depth_max,
             self._weight_threshold(self.cfg.raycast_weight_threshold),
             self.cfg.trunc_voxels,
-            8,
+            _range_map_factor(width, height),
         )
         depth = out["depth"].numpy()[..., 0].astype(np.float32)
         bad = ~np.isfinite(depth)

@@ -9,10 +9,10 @@ def test_seven_scenes_single_folder(tmp_path):
     root = tmp_path / "seq-01"
     root.mkdir()
     for i in range(3):
-        d = np.full((48, 64), 1500, np.uint16)
+        d = np.full((480, 640), 1500, np.uint16)  # the default 7-Scenes calibration size
         d[0, 0] = 65535
         cv2.imwrite(str(root / f"frame-{i:06d}.depth.png"), d)
-        cv2.imwrite(str(root / f"frame-{i:06d}.color.png"), np.zeros((48, 64, 3), np.uint8))
+        cv2.imwrite(str(root / f"frame-{i:06d}.color.png"), np.zeros((480, 640, 3), np.uint8))
         T = np.eye(4)
         T[0, 3] = i
         np.savetxt(root / f"frame-{i:06d}.pose.txt", T)

@@ -117,3 +117,18 @@ def test_save_and_load_restore_the_same_volume(tmp_path):
     a, b = vol.render(K, 320, 240, poses[3]), back.render(K, 320, 240, poses[3])
     np.testing.assert_array_equal(a.depth_m, b.depth_m)
     assert len(vol.extract_mesh().vertices) == len(back.extract_mesh().vertices)
+
+
+def test_raycast_of_small_images_returns():
+    """Image sizes the ray-caster's 8x range map does not divide (80x60 at a 160x120 camera's
+    tracking resolution): Open3D's ray_cast never returned with a factor of 8 there."""
+    from slam.mapping.tsdf import _range_map_factor
+
+    assert _range_map_factor(80, 60) == 4 and _range_map_factor(320, 240) == 8
+    assert _range_map_factor(75, 61) == 1
+    vol, center, radius, K, poses = _fuse_sphere(0.02)
+    K_small = K.copy()
+    K_small[:2] /= 4  # 80x60
+    r = vol.raycast(K_small, 80, 60, poses[0], frustum_depth_m=np.full((60, 80), 1.0, np.float32))
+    z = r.depth_m[30, 40]
+    assert abs(z - (1.3 - radius)) < 0.03, z

@@ -1,0 +1,44 @@
+"""What a run produces (:class:`RunResult`), shared by the stepwise system and the runner."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from slam.trajectory import Trajectory
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+    from slam.backend.loop_closure import LoopCloser
+    from slam.config import SlamConfig
+    from slam.frontend.tracker import TrackingStatus
+    from slam.mapping.submaps import SubmapMap
+
+
+@dataclass
+class RunResult:
+    """What a run produces. ``trajectory`` is the final estimate, ``odometry`` the frontend-only
+    one (identical until loop closure corrects poses); both hold the frames that have a pose in
+    the main map component (lost frames have none). ``segments``: trajectories of map segments
+    that were never joined to the main one (their frame is unrelated to it), by segment id."""
+
+    trajectory: Trajectory
+    odometry: Trajectory
+    mesh: o3d.geometry.TriangleMesh | None
+    metrics: dict[str, Any]
+    tracking: list[TrackingStatus] = field(default_factory=list)
+    config: SlamConfig | None = None
+    model: SubmapMap | None = None  # the submaps (odometry frame), for re-meshing and inspection
+    loop_closer: LoopCloser | None = None  # keyframes, pose graph and loop records
+    segments: dict[int, Trajectory] = field(default_factory=dict)
+
+    @property
+    def poses(self) -> np.ndarray:
+        return self.trajectory.poses
+
+    @property
+    def timestamps(self) -> np.ndarray:
+        return self.trajectory.timestamps
