@@ -79,6 +79,9 @@ class TrackingConfig:
     # model reaches hypothesis_overlap); a fixed pose, unlike a RANSAC search, rarely gathers
     # agreeing matches by chance, so this is below ransac.min_inliers
     verify_min_matches: int = 8
+    # a frame whose overlap with the model falls below this fraction of the recent frames'
+    # (median of the last 10) is verified the same way (clean runs: >= 0.70; a jump: 0.47)
+    suspect_overlap_ratio: float = 0.6
     # while lost, every frame is relocalised against the map's keyframes (at most this many
     # candidates a frame); after this many lost frames with usable depth a new map segment starts
     relocalisation_candidates: int = 5
@@ -194,6 +197,7 @@ class SlamConfig:
             (0 <= t.min_depth_fraction < 1, "tracking.min_depth_fraction", t.min_depth_fraction, "in [0, 1)"),
             (t.gap_factor > 1, "tracking.gap_factor", t.gap_factor, "> 1"),
             (t.verify_min_matches >= 3, "tracking.verify_min_matches", t.verify_min_matches, ">= 3"),
+            (0 <= t.suspect_overlap_ratio <= 1, "tracking.suspect_overlap_ratio", t.suspect_overlap_ratio, "in [0, 1]"),
             (t.relocalisation_candidates >= 1, "tracking.relocalisation_candidates", t.relocalisation_candidates, ">= 1"),
             (t.new_segment_after_lost >= 1, "tracking.new_segment_after_lost", t.new_segment_after_lost, ">= 1"),
             (t.ransac.n_features >= 10, "tracking.ransac.n_features", t.ransac.n_features, ">= 10"),

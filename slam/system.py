@@ -488,6 +488,7 @@ class Slam:
                 "prev_depth": st.prev_depth,
                 "prev_features": None if prev is None else _keyframe_state(prev),
                 "rng": self.tracker._rng.bit_generator.state,
+                "recent_overlaps": list(st.recent_overlaps),
             },
             "closer": self.closer.state_dict(),
             "model": self.model.state_dict(),
@@ -532,6 +533,7 @@ class Slam:
             None if t["prev_features"] is None else _keyframe_from_state(t["prev_features"])
         )
         self.tracker._rng.bit_generator.state = t["rng"]
+        st.recent_overlaps = list(t["recent_overlaps"])
         self.closer.load_state_dict(state["closer"], by_id)
         self.model.load_state_dict(state["model"])
         self.rows = _Rows(**{k: list(v) for k, v in state["rows"].items()})

@@ -113,6 +113,7 @@ class TrackerState:
     prev_pyramid: list[np.ndarray] | None = None  # ... and its ICP pyramid (not saved)
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
+    recent_overlaps: list[float] = field(default_factory=list)  # of the last tracked frames
 
 
 class Tracker:
@@ -201,6 +202,7 @@ class Tracker:
         st.velocity = np.eye(4)
         st.prev_depth = depth
         st.prev_pyramid = None
+        st.recent_overlaps = []
         st.prev_features = (
             Keyframe(frame.index, frame.timestamp, T.copy(), feats)
             if feats is not None and len(feats) > 0
@@ -379,17 +381,29 @@ class Tracker:
                 f"overlap {score:.2f} (min {cfg.min_overlap}), ICP fitness {icp.fitness:.2f} "
                 f"(min {cfg.min_fitness}), RANSAC inliers {status.ransac_inliers}"
             )
-        elif verify:
-            if feats is None:
-                feats = self._features(frame)
-            support = self._feature_support(feats, T)
-            if support < cfg.verify_min_matches and score < cfg.hypothesis_overlap:
-                ok = False
-                status.reason = (
-                    f"unverified after a gap: {support} ORB matches agree with the pose "
-                    f"(min {cfg.verify_min_matches}) and overlap {score:.2f} < "
-                    f"{cfg.hypothesis_overlap}"
-                )
+        else:
+            # an overlap far below the recent frames' is as suspect as a gap (a jump the
+            # prediction did not see, e.g. the camera put down and picked up elsewhere)
+            recent = st.recent_overlaps[-10:]
+            usual = float(np.median(recent)) if len(recent) >= 3 else 0.0
+            suspect = score < cfg.suspect_overlap_ratio * usual
+            if verify or suspect:
+                if feats is None:
+                    feats = self._features(frame)
+                support = self._feature_support(feats, T)
+                if support < cfg.verify_min_matches and score < cfg.hypothesis_overlap:
+                    ok = False
+                    why = (
+                        "after a gap"
+                        if verify
+                        else f"(overlap below {cfg.suspect_overlap_ratio} of the recent "
+                        f"frames' {usual:.2f})"
+                    )
+                    status.reason = (
+                        f"unverified {why}: {support} ORB matches agree with the pose "
+                        f"(min {cfg.verify_min_matches}) and overlap {score:.2f} < "
+                        f"{cfg.hypothesis_overlap}"
+                    )
         status.ok = ok
         if not ok:
             status.path = "lost"
@@ -398,6 +412,7 @@ class Tracker:
             status.ms = (time.perf_counter() - t0) * 1e3
             return None, status
         T = orthonormalize(T)
+        st.recent_overlaps = (st.recent_overlaps + [float(score)])[-10:]
         st.velocity = scale_motion(inv_T(T_prev) @ T, 1.0 / float(np.clip(dt_ratio, 0.2, 5.0)))
         st.T_world_prev = T
         st.prev_depth = depth
