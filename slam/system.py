@@ -176,7 +176,11 @@ class Slam:
         elif self.lost:
             T, status, link = self._recover(frame, ratio)
             if T is None:
+                tracked = status
                 T, status, link = self._relocalise(frame)
+                if T is None:
+                    status = tracked
+                    status.reason += "; relocalisation: no keyframe verifies"
             if T is None and self.lost_with_depth + 1 >= tcfg.new_segment_after_lost:
                 assert self.tracker.state.T_world_prev is not None
                 T, status, link = self._new_segment(frame, self.tracker.state.T_world_prev)
@@ -475,7 +479,8 @@ class Slam:
         """Everything the run has built, as plain data and numpy arrays: frames and poses so
         far, tracker state, keyframes (ORB features and depth), place-recognition index, pose
         graph and submaps (blocks of those in memory; paths of those spilled to disk).
-        ``load_state_dict`` on a new :class:`Slam` with the same config continues the run."""
+        ``load_state_dict`` on a new :class:`Slam` with the same config continues the run.
+        The state is a snapshot: stepping on does not change it."""
         st = self.tracker.state
         prev = st.prev_features
         return {
@@ -492,7 +497,7 @@ class Slam:
             },
             "closer": self.closer.state_dict(),
             "model": self.model.state_dict(),
-            "rows": self.rows.__dict__,
+            "rows": {k: list(v) for k, v in self.rows.__dict__.items()},
             "kf_rows": list(self.kf_rows),
             "statuses": [s.as_row() for s in self.statuses],
             "skipped": list(self.skipped),

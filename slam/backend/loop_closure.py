@@ -12,6 +12,7 @@ the joined segment is moved there rigidly, its prior dropped, and the graph opti
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from dataclasses import dataclass, field
@@ -351,15 +352,17 @@ class LoopCloser:
         here by id."""
         return {
             "graph": self.graph.state_dict(),
-            "database": self.database,
+            "database": copy.deepcopy(self.database),
             "keyframes": [kf.id for kf in self.keyframes],
             "path_length_m": list(self.path_length_m),
-            "records": self.records,
+            "records": copy.deepcopy(self.records),
             "ms": dict(self.ms),
             "optimisations": self.optimisations,
             "segment_parent": dict(self.segment_parent),
-            "joins": self.joins,
-            "pending_joins": [(c.id, k.id, v, tag) for c, k, v, tag in self._pending_joins],
+            "joins": copy.deepcopy(self.joins),
+            "pending_joins": [
+                (c.id, k.id, copy.deepcopy(v), tag) for c, k, v, tag in self._pending_joins
+            ],
             "verifier_rng": self.verifier._rng.bit_generator.state,
         }
 

@@ -11,8 +11,17 @@ from slam.errors import FrameReadError
 
 
 def read_color(path: Path, index: int) -> np.ndarray:
-    """Read a colour image as HxWx3 uint8 RGB; raise FrameReadError naming file and frame."""
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    """Read a colour image as HxWx3 uint8 RGB; raise FrameReadError naming file and frame.
+    A truncated JPEG is an error too (OpenCV would decode its first part and grey the rest)."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise FrameReadError(f"frame {index}: cannot read colour image {path}: {exc}") from exc
+    if data[:2] == b"\xff\xd8" and b"\xff\xd9" not in data[-1024:]:
+        raise FrameReadError(
+            f"frame {index}: colour image {path} is a truncated JPEG (no end-of-image marker)"
+        )
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
     if img is None:
         raise FrameReadError(
             f"frame {index}: cannot decode colour image {path} (missing or corrupt)"

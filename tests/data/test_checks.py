@@ -69,3 +69,17 @@ def test_first_frames_without_depth_do_not_stop_the_check(tmp_path):
     for i in range(6):
         cv2.imwrite(str(root / f"depth/{i}.png"), np.zeros((48, 64), np.uint16))
     check_sequence(slam.open_sequence(root), list(range(6)))
+
+
+def test_truncated_jpeg_is_unreadable(tmp_path):
+    """OpenCV decodes the first part of a truncated JPEG and greys the rest: that is an
+    unreadable frame, not a frame to track."""
+    from slam.data.images import read_color
+    from slam.errors import FrameReadError
+
+    ok, buf = cv2.imencode(".jpg", np.random.default_rng(0).integers(0, 255, (48, 64, 3), np.uint8))
+    (tmp_path / "a.jpg").write_bytes(buf.tobytes())
+    assert read_color(tmp_path / "a.jpg", 0).shape == (48, 64, 3)
+    (tmp_path / "b.jpg").write_bytes(buf.tobytes()[: len(buf) // 2])
+    with pytest.raises(FrameReadError, match="frame 7: colour image .*b.jpg is a truncated JPEG"):
+        read_color(tmp_path / "b.jpg", 7)
