@@ -79,6 +79,8 @@ class TrackingConfig:
     # model reaches hypothesis_overlap); a fixed pose, unlike a RANSAC search, rarely gathers
     # agreeing matches by chance, so this is below ransac.min_inliers
     verify_min_matches: int = 8
+    # ... or when its overlap with the model is at least this fraction of the recent frames'
+    verify_overlap_ratio: float = 0.9
     # a frame whose overlap with the model falls below this fraction of the recent frames'
     # (median of the last 10) is verified the same way (clean runs: >= 0.70; a jump: 0.47)
     suspect_overlap_ratio: float = 0.6
@@ -197,6 +199,7 @@ class SlamConfig:
             (0 <= t.min_depth_fraction < 1, "tracking.min_depth_fraction", t.min_depth_fraction, "in [0, 1)"),
             (t.gap_factor > 1, "tracking.gap_factor", t.gap_factor, "> 1"),
             (t.verify_min_matches >= 3, "tracking.verify_min_matches", t.verify_min_matches, ">= 3"),
+            (0 < t.verify_overlap_ratio <= 1, "tracking.verify_overlap_ratio", t.verify_overlap_ratio, "in (0, 1]"),
             (0 <= t.suspect_overlap_ratio <= 1, "tracking.suspect_overlap_ratio", t.suspect_overlap_ratio, "in [0, 1]"),
             (t.relocalisation_candidates >= 1, "tracking.relocalisation_candidates", t.relocalisation_candidates, ">= 1"),
             (t.new_segment_after_lost >= 1, "tracking.new_segment_after_lost", t.new_segment_after_lost, ">= 1"),

@@ -391,7 +391,14 @@ class Tracker:
                 if feats is None:
                     feats = self._features(frame)
                 support = self._feature_support(feats, T)
-                if support < cfg.verify_min_matches and score < cfg.hypothesis_overlap:
+                # depth alone verifies a pose that overlaps the model as well as the frames
+                # before the gap did (textureless scenes have no ORB evidence to offer)
+                as_before = not suspect and score >= cfg.verify_overlap_ratio * usual > 0
+                if (
+                    support < cfg.verify_min_matches
+                    and score < cfg.hypothesis_overlap
+                    and not as_before
+                ):
                     ok = False
                     why = (
                         "after a gap"
@@ -402,7 +409,8 @@ class Tracker:
                     status.reason = (
                         f"unverified {why}: {support} ORB matches agree with the pose "
                         f"(min {cfg.verify_min_matches}) and overlap {score:.2f} < "
-                        f"{cfg.hypothesis_overlap}"
+                        f"{cfg.hypothesis_overlap} and < {cfg.verify_overlap_ratio} x the "
+                        f"recent frames' {usual:.2f}"
                     )
         status.ok = ok
         if not ok:
