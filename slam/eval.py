@@ -63,6 +63,7 @@ __all__ = [
     "plot_trajectories",
     "rpe",
     "save_figure",
+    "sequence_ground_truth",
 ]
 
 #: Minimum number of associated poses for any metric (Umeyama needs 3 points).
@@ -701,6 +702,41 @@ def _read_run_config(run_dir: Path) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+#: The ground-truth file of a sequence folder (TUM layout; the one evo is given).
+GROUND_TRUTH_FILE = "groundtruth.txt"
+
+
+def sequence_ground_truth(
+    seq_dir: str | Path,
+    sequence: Any = None,
+    layout: str = "auto",
+    calibration: dict[str, Any] | None = None,
+) -> tuple[Trajectory | None, str]:
+    """The ground truth runs of a sequence are evaluated against, and where it came from.
+
+    One definition for ``metrics.json`` (:func:`slam.run`) and ``slam eval RUN_DIR``
+    (:func:`load_run_ground_truth`), evo's: the folder's ``groundtruth.txt`` as it is (raw
+    poses, associated with the estimate by nearest timestamp within ``max_diff`` when
+    evaluating, as ``evo_ape`` does; not interpolated at the frame times), else the sequence
+    loader's ground truth (e.g. 7-Scenes ``*.pose.txt``; ``sequence`` when already open, else
+    the folder is opened with ``layout`` and ``calibration``). ``(None, why)`` when there is
+    none; unreadable files raise :class:`slam.errors.SlamError` subclasses.
+    """
+    seq_dir = Path(seq_dir)
+    gt_file = seq_dir / GROUND_TRUTH_FILE
+    if gt_file.is_file():
+        return read_tum(gt_file), str(gt_file)
+    if sequence is None:
+        from slam.data.loader import open_sequence
+
+        sequence = open_sequence(seq_dir, layout, calibration)
+    gt = sequence.ground_truth
+    if gt is None or len(gt) == 0:
+        why = f"{seq_dir}: the sequence has no ground truth (no {GROUND_TRUTH_FILE} or poses)"
+        return None, why
+    return gt, f"{seq_dir} ({type(sequence).__name__} ground truth)"
+
+
 def load_run_ground_truth(
     run_dir: str | Path, gt_path: str | Path | None = None
 ) -> tuple[Trajectory, str]:
@@ -708,9 +744,9 @@ def load_run_ground_truth(
 
     ``gt_path`` (a TUM file) wins when given. Otherwise the sequence folder is ``dataset.path`` in
     the run's ``config.yaml``, else ``sequence`` in its ``metrics.json`` (relative paths: to the
-    working directory, then to the run folder):
-    its ``groundtruth.txt`` when present (the file evo would read), else the sequence loader's
-    ground truth (:func:`slam.data.loader.open_sequence`, e.g. 7-Scenes ``*.pose.txt``).
+    working directory, then to the run folder), and its ground truth is
+    :func:`sequence_ground_truth` (``groundtruth.txt``, the file evo would read, else the sequence
+    loader's), the same that ``slam run`` evaluated ``metrics.json`` against.
     Raises :class:`TrajectoryError` saying what is missing and suggesting ``--gt``.
     """
     run_dir = Path(run_dir)
@@ -735,28 +771,24 @@ def load_run_ground_truth(
             f"{run_dir}: the sequence folder recorded for the run ({seq_path}) does not exist "
             f"here; give the ground-truth file with --gt FILE"
         )
-    gt_file = seq_dir / "groundtruth.txt"
-    if gt_file.is_file():
-        return read_tum(gt_file), str(gt_file)
-    from slam.data.loader import open_sequence
     from slam.errors import SlamError
 
     try:
-        seq = open_sequence(
-            seq_dir, dataset.get("layout") or "auto", dataset.get("calibration") or None
+        gt, source = sequence_ground_truth(
+            seq_dir,
+            layout=dataset.get("layout") or "auto",
+            calibration=dataset.get("calibration") or None,
         )
-        gt = seq.ground_truth
+    except TrajectoryError:
+        raise
     except SlamError as exc:
         raise TrajectoryError(
             f"{run_dir}: cannot read the ground truth of {seq_dir}: {exc}; "
             f"give the ground-truth file with --gt FILE"
         ) from exc
-    if gt is None or len(gt) == 0:
-        raise TrajectoryError(
-            f"{seq_dir}: the sequence has no ground truth (no groundtruth.txt or poses); "
-            f"give the ground-truth file with --gt FILE"
-        )
-    return gt, f"{seq_dir} ({type(seq).__name__} ground truth)"
+    if gt is None:
+        raise TrajectoryError(f"{source}; give the ground-truth file with --gt FILE")
+    return gt, source
 
 
 def _run_metrics(run_dir: Path) -> dict[str, Any]:
