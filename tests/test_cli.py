@@ -1,14 +1,21 @@
 import json
 
 import numpy as np
+import yaml
 from typer.testing import CliRunner
 
 from slam import eval as slam_eval
 from slam.cli import app
+from slam.data.calibration import read_calibration_yaml
 from slam.geometry import exp_se3
 from slam.trajectory import Trajectory, read_tum, write_tum
 
 runner = CliRunner()
+
+
+def flat(text: str) -> str:
+    """CLI output with rich's line wrapping undone."""
+    return " ".join(text.split())
 
 
 def test_eval_json_matches_library(tmp_path):
@@ -93,3 +100,27 @@ def test_bad_config_is_a_clear_error(tmp_path):
     )
     assert res.exit_code == 2
     assert "no_such_key" in res.output
+
+
+def test_run_with_calibration_from_the_config(tmp_path):
+    """A sequence folder with no calibration.yaml and no freiburg in its name runs when the
+    config gives the intrinsics in dataset.calibration, as the error message says."""
+    from slam.data.synthetic import SynthConfig, generate_sequence
+
+    seq = generate_sequence(
+        tmp_path / "mycam", SynthConfig.half_resolution(frames=300, render_frames=5)
+    )
+    calib = read_calibration_yaml(seq / "calibration.yaml")
+    (seq / "calibration.yaml").unlink()
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["run", str(seq), "--out", str(out), "--max-frames", "4"])
+    assert res.exit_code == 2
+    assert "dataset.calibration" in flat(res.output)
+    cfg = tmp_path / "calib.yaml"
+    cfg.write_text(yaml.safe_dump({"dataset": {"calibration": calib.to_dict()}}))
+    res = runner.invoke(
+        app, ["run", str(seq), "--out", str(out), "--max-frames", "4", "--config", str(cfg)]
+    )
+    assert res.exit_code == 0, res.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == 4 and metrics["tracking_failures"] == 0
