@@ -10,7 +10,7 @@ from slam.checkpoint import has_checkpoint
 from slam.config import SlamConfig, load_config
 from slam.data.base import Sequence
 from slam.data.loader import open_sequence
-from slam.errors import RunFolderError
+from slam.errors import ConfigError, RunFolderError
 from slam.pipeline import FrameCallback, ProgressCallback, RunResult, run, save_run
 from slam.run_folder import prepare_run_dir, remove_work_dirs
 from slam.trajectory import atomic_write_text
@@ -39,6 +39,8 @@ def run_sequence(
     """
     cfg = config if config is not None else load_config(config_path)
     if max_frames is not None:
+        if max_frames < 1:
+            raise ConfigError(f"max_frames must be >= 1 (or None for all), got {max_frames}")
         cfg.dataset.max_frames = max_frames
     cfg.validate()
     out = prepare_run_dir(out_dir, overwrite)
