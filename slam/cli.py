@@ -130,6 +130,14 @@ def run(
         bool,
         typer.Option("--overwrite", help="Replace the run already in --out (deletes its outputs)."),
     ] = False,
+    rerun: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--rerun",
+            help="Also record the run for the rerun 3D viewer into this .rrd file (needs "
+            "`pip install 'rgbd-slam[viz]'`; open it with `rerun FILE.rrd`).",
+        ),
+    ] = None,
     verbose: Verbose = 0,
     quiet: Quiet = False,
 ) -> None:
@@ -146,6 +154,10 @@ def run(
                 "--resume continues a run with its own sequence and config: give no SEQUENCE, "
                 "--config or --max-frames with it"
             )
+        if rerun is not None:
+            from slam.viewer import check_recording_path
+
+            check_recording_path(rerun)
         if sequence is None and resume is None:
             sequence = _generate_demo(quiet)
         progress = _progress(
@@ -179,6 +191,7 @@ def run(
                     resume,
                     progress=on_frame,
                     checkpoint_every=checkpoint_every or None,
+                    rerun=rerun,
                 )
             else:
                 result, run_dir = run_sequence(
@@ -189,6 +202,7 @@ def run(
                     progress=on_frame,
                     checkpoint_every=checkpoint_every,
                     overwrite=overwrite,
+                    rerun=rerun,
                 )
         finally:
             if t0:  # started at the first frame
@@ -200,7 +214,46 @@ def run(
         return
     files = ", ".join(sorted(p.name for p in run_dir.iterdir() if p.is_file()))
     console.print(f"[green]wrote[/] {run_dir}: {files}")
+    if rerun is not None:
+        console.print(f"[green]wrote[/] {rerun} (open it with `rerun {rerun}`)")
     typer.echo(summary_line(result.metrics))
+
+
+@app.command()
+def view(
+    run_dir: Annotated[Path, typer.Argument(help="Run folder written by `slam run`.")],
+    out: Annotated[
+        Optional[Path],
+        typer.Option("--out", "-o", help="Recording file to write [RUN_DIR/recording.rrd]."),
+    ] = None,
+    open_viewer: Annotated[
+        bool, typer.Option("--open", help="Start the rerun viewer on it (needs a display).")
+    ] = False,
+    image_scale: Annotated[
+        int,
+        typer.Option(
+            "--image-scale",
+            min=0,
+            help="Log colour and depth at 1/N resolution (0: no images; they are read again "
+            "from the run's sequence folder).",
+        ),
+    ] = 4,
+    verbose: Verbose = 0,
+) -> None:
+    """Write the rerun 3D recording of a finished run (as `slam run --rerun` makes it while
+    running): camera, images, tracking state, trajectory, keyframes, loops, mesh."""
+    from slam.viewer import open_in_viewer, record_run_folder
+
+    _setup_logging(verbose)
+    try:
+        path = record_run_folder(run_dir, out, image_scale=image_scale)
+        typer.echo(f"wrote {path}")
+        if open_viewer:
+            open_in_viewer(path)
+        else:
+            typer.echo(f"open it with: rerun {path}")
+    except SlamError as exc:
+        _fail(exc)
 
 
 @app.command()
