@@ -60,6 +60,8 @@ __all__ = [
     "evaluate_run",
     "load_run_ground_truth",
     "parse_delta",
+    "PlotPlane",
+    "plot_plane",
     "plot_trajectories",
     "rpe",
     "save_figure",
@@ -862,20 +864,73 @@ def evaluate_run(
 # plotting
 
 _AXIS_NAMES = "xyz"
-# Tie-break when extents are equal: prefer x, then z, then y (a top view for y-down cameras).
-_AXIS_PREFERENCE = {0: 0, 2: 1, 1: 2}
+#: A principal direction this close to a coordinate axis is drawn as that axis (degrees).
+_SNAP_DEG = 20.0
 
 
-def _plot_axes(points: np.ndarray) -> tuple[int, int]:
-    if len(points) == 0:
-        return 0, 2
-    extent = np.ptp(points, axis=0)
-    extent = np.where(np.isfinite(extent), extent, 0.0)
-    if not np.any(extent > 0):
-        return 0, 2
-    best = sorted(range(3), key=lambda a: (-round(float(extent[a]), 12), _AXIS_PREFERENCE[a]))
-    a, b = sorted(best[:2])
-    return a, b
+@dataclass
+class PlotPlane:
+    """The plane a trajectory plot shows: unit directions ``u`` (horizontal) and ``v``
+    (vertical) in world coordinates, their axis labels, and the plane's name (``"x-y plane"``
+    when both are coordinate axes, else ``"plane of largest extent"``)."""
+
+    u: np.ndarray
+    v: np.ndarray
+    u_label: str
+    v_label: str
+    name: str
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = np.asarray(points, float).reshape(-1, 3)
+        return p @ self.u, p @ self.v
+
+
+def _direction_label(d: np.ndarray) -> str:
+    k = int(np.argmax(np.abs(d)))
+    if np.isclose(abs(d[k]), 1.0):
+        return _AXIS_NAMES[k]
+    terms = [(c, _AXIS_NAMES[i]) for i, c in enumerate(d) if abs(c) >= 0.005]
+    out = f"{terms[0][0]:.2f} {terms[0][1]}"
+    for c, n in terms[1:]:
+        out += f" {'-' if c < 0 else '+'} {abs(c):.2f} {n}"
+    return out
+
+
+def _snap(d: np.ndarray) -> np.ndarray:
+    k = int(np.argmax(np.abs(d)))
+    if abs(d[k]) >= np.cos(np.radians(_SNAP_DEG)):
+        e = np.zeros(3)
+        e[k] = 1.0
+        return e
+    return d * np.sign(d[k])  # the largest component positive
+
+
+def plot_plane(points: np.ndarray) -> PlotPlane:
+    """The plane in which ``points`` extend most: their two principal directions (PCA), each
+    drawn as the nearest coordinate axis when within 20 degrees of it (so a trajectory that
+    moves in a floor or table plane is shown in that plane, and a plot names x, y, z where it
+    can). Points with no spread give the x-z plane (the floor of a y-down camera)."""
+    x, z = np.eye(3)[0], np.eye(3)[2]
+    p = np.asarray(points, float).reshape(-1, 3)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if len(p) < 2 or not np.any(np.ptp(p, axis=0) > 1e-12):
+        return PlotPlane(x, z, "x", "z", "x-z plane")
+    c = p - p.mean(0)
+    w, vecs = np.linalg.eigh(c.T @ c)
+    e1 = _snap(vecs[:, 2])
+    e2 = vecs[:, 1] - (vecs[:, 1] @ e1) * e1
+    if np.linalg.norm(e2) < 1e-9 or w[1] <= 1e-12 * max(w[2], 1e-300):
+        # a line: the second direction is free; take the coordinate axis most across it
+        k = int(np.argmin(np.abs(e1) + np.array([0.0, 1e-6, 0.0])))  # prefer x, z over y
+        e2 = np.eye(3)[k] - (np.eye(3)[k] @ e1) * e1
+    e2 = _snap(e2 / np.linalg.norm(e2))
+    if np.count_nonzero(e1) == 1 and np.count_nonzero(e2) == 1:
+        a, b = sorted((int(np.argmax(e1)), int(np.argmax(e2))))
+        e1, e2 = np.eye(3)[a], np.eye(3)[b]
+        name = f"{_AXIS_NAMES[a]}-{_AXIS_NAMES[b]} plane"
+    else:
+        name = "plane of largest extent"
+    return PlotPlane(e1, e2, _direction_label(e1), _direction_label(e2), name)
 
 
 def save_figure(fig: Any, path_png: str | Path) -> Path:
@@ -901,17 +956,21 @@ def plot_trajectories(
     title: str = "",
     loop_edges: Sequence[tuple[np.ndarray, np.ndarray]] = (),
     loop_label: str = "loop edge",
-) -> None:
-    """Top view of the ground truth and any number of trajectories, saved as a PNG.
+) -> PlotPlane:
+    """Plot of the ground truth and any number of trajectories, saved as a PNG; returns the
+    plane shown.
 
-    The plane is spanned by the two axes along which the ground truth (or, without one, all
-    trajectories) extends most; x-z when undecided. Trajectories are plotted as given (use
-    :func:`align_trajectory` first to overlay an estimate on the ground truth). ``loop_edges``
-    are pairs of 3D positions joined by a line (e.g. the two camera positions of an accepted loop
-    closure), all under one legend entry ``loop_label``. Written atomically.
+    The plane is the one in which the ground truth (or, without one, all trajectories) extends
+    most (:func:`plot_plane`); the axis labels say which directions it spans. Trajectories are
+    plotted as given (use :func:`align_trajectory` first to overlay an estimate on the ground
+    truth). ``loop_edges`` are pairs of 3D positions joined by a thin, light line (e.g. the two
+    camera positions of an accepted loop closure; the more there are, the lighter), all under
+    one legend entry ``loop_label``. Written atomically.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
 
     trajectories = dict(trajectories or {})
     if gt is None and not trajectories:
@@ -924,41 +983,41 @@ def plot_trajectories(
         ref_points = np.concatenate(
             [t.positions for t in trajectories.values() if len(t)] or [np.zeros((0, 3))]
         )
-    a, b = _plot_axes(ref_points)
+    plane = plot_plane(ref_points)
 
     fig = Figure(figsize=(8, 7), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
     if gt is not None and len(gt):
-        p = gt.positions
-        ax.plot(
-            p[:, a], p[:, b], color="black", linestyle="--", linewidth=1.5, label="ground truth"
-        )
-        ax.plot(p[0, a], p[0, b], marker="o", color="black", markersize=5, linestyle="none")
+        pu, pv = plane.project(gt.positions)
+        ax.plot(pu, pv, color="black", linestyle="--", linewidth=1.5, label="ground truth")
+        ax.plot(pu[0], pv[0], marker="o", color="black", markersize=5, linestyle="none")
     for name, traj in trajectories.items():
         if len(traj) == 0:
             logger.warning("plot_trajectories: trajectory %r is empty, skipped", name)
             continue
-        p = traj.positions
-        (line,) = ax.plot(p[:, a], p[:, b], linewidth=1.2, label=str(name))
-        ax.plot(
-            p[0, a], p[0, b], marker="o", color=line.get_color(), markersize=4, linestyle="none"
+        pu, pv = plane.project(traj.positions)
+        (line,) = ax.plot(pu, pv, linewidth=1.2, label=str(name))
+        ax.plot(pu[0], pv[0], marker="o", color=line.get_color(), markersize=4, linestyle="none")
+    if len(loop_edges):
+        a = np.array([np.asarray(p0, float) for p0, _ in loop_edges])
+        b = np.array([np.asarray(p1, float) for _, p1 in loop_edges])
+        au, av = plane.project(a)
+        bu, bv = plane.project(b)
+        segs = np.stack([np.stack([au, av], 1), np.stack([bu, bv], 1)], 1)
+        alpha = float(np.clip(3.0 / np.sqrt(len(segs)), 0.12, 0.7))
+        ax.add_collection(
+            LineCollection(segs, colors="red", linewidths=0.6, alpha=alpha, zorder=3)
         )
-    for k, (p0, p1) in enumerate(loop_edges):
-        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
         ax.plot(
-            [p0[a], p1[a]],
-            [p0[b], p1[b]],
-            color="red",
-            linewidth=0.9,
-            alpha=0.75,
-            marker=".",
-            markersize=4,
-            label=f"{loop_label} ({len(loop_edges)})" if k == 0 else None,
-            zorder=3,
+            np.r_[au, bu], np.r_[av, bv], ".", color="red", markersize=2.5, alpha=alpha, zorder=3
         )
-    ax.set_xlabel(f"{_AXIS_NAMES[a]} [m]")
-    ax.set_ylabel(f"{_AXIS_NAMES[b]} [m]")
+        # an empty line carries the legend entry of the collection
+        proxy = Line2D([], [], color="red", linewidth=0.8, alpha=max(alpha, 0.5))
+        proxy.set_label(f"{loop_label} ({len(segs)})")
+        ax.add_line(proxy)
+    ax.set_xlabel(f"{plane.u_label} [m]")
+    ax.set_ylabel(f"{plane.v_label} [m]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best")
@@ -966,4 +1025,5 @@ def plot_trajectories(
         ax.set_title(title)
     fig.tight_layout()
     path = save_figure(fig, path_png)
-    logger.debug("wrote trajectory plot %s", path)
+    logger.debug("wrote trajectory plot %s (%s)", path, plane.name)
+    return plane

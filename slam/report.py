@@ -5,14 +5,16 @@
 writes, next to them or into ``out_dir``:
 
 * ``report_topview.png``: ground truth, odometry and final trajectory (each SE(3)-aligned to the
-  ground truth as ATE aligns it) seen from above, with the accepted loop-closure edges
+  ground truth as ATE aligns it) in the plane in which the ground truth extends most (its axes
+  labelled; a coordinate plane such as x-y when it is close to one), with the accepted
+  loop-closure edges drawn thin and light
 * ``report_error.png``: translation error of odometry and final trajectory over time, with the
   times of accepted loop closures marked
 * ``report_timing.png``: total time per pipeline stage and tracking time of every frame
 * ``report.md``: the numbers (ATE, RPE, drift for both trajectories, loops, tracking, timing)
   and the plots
 
-Every input but ``trajectory.txt`` is optional: without ground truth the top view shows the
+Every input but ``trajectory.txt`` is optional: without ground truth the trajectory plot shows the
 trajectories in the SLAM world frame and there is no error plot; without ``loops.json`` no loop
 edges are drawn. Plots use matplotlib's Agg backend (no display needed).
 """
@@ -23,7 +25,6 @@ import csv
 import json
 import logging
 import re
-from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,14 @@ from slam.trajectory import Trajectory, atomic_write_text, read_tum
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Report", "RunFolder", "load_run_folder", "loop_edges", "write_report"]
+__all__ = [
+    "Report",
+    "RunFolder",
+    "load_run_folder",
+    "loop_edges",
+    "rejection_reasons",
+    "write_report",
+]
 
 TOPVIEW_PNG = "report_topview.png"
 ERROR_PNG = "report_error.png"
@@ -157,6 +165,16 @@ def load_run_folder(run_dir: str | Path) -> RunFolder:
     return run
 
 
+def _during(gt: Trajectory, traj: Trajectory, tol: float) -> Trajectory:
+    """The ground truth over the time the trajectory covers (a run of part of a sequence, or
+    motion capture that starts before the camera, would otherwise draw what was not run)."""
+    if len(traj) == 0:
+        return gt
+    t = gt.timestamps
+    keep = (t >= traj.timestamps[0] - tol) & (t <= traj.timestamps[-1] + tol)
+    return Trajectory(t[keep], gt.poses[keep]) if np.count_nonzero(keep) >= 2 else gt
+
+
 def _index_at(stamps: np.ndarray, t: float, tol: float) -> int | None:
     i = int(np.argmin(np.abs(stamps - t)))
     return i if abs(stamps[i] - t) <= tol else None
@@ -206,7 +224,7 @@ def _plot_error(
 ) -> Path:
     fig = _figure((9, 4.5))
     ax = fig.add_subplot(1, 1, 1)
-    # same colours as the top view (matplotlib's cycle: odometry first when shown)
+    # same colours as the trajectory plot (matplotlib's cycle: odometry first when shown)
     colors = {"odometry": "C0", "final": "C1"} if "odometry" in curves else {"final": "C0"}
     for name, (t, err) in curves.items():
         rmse = float(np.sqrt(np.mean(err**2)))
@@ -380,14 +398,13 @@ def _loops_md(run: RunFolder) -> list[str]:
     rejected = [c for c in run.loops if not c.get("accepted")]
     out = [
         f"{len(run.loops)} loop candidates verified: **{len(acc)} accepted**, "
-        f"{len(rejected)} rejected. Accepted loops are the red edges in the top view "
+        f"{len(rejected)} rejected. Accepted loops are the red edges in the trajectory plot "
         "(between the two camera positions of the final trajectory).",
         "",
     ]
     if rejected:
-        reasons = Counter(re.sub(r"\d+(\.\d+)?", "#", str(c.get("reason", "?"))) for c in rejected)
-        out += ["| rejection reason | count |", "|---|---:|"]
-        out += [f"| {r} | {n} |" for r, n in reasons.most_common()]
+        out += ["| rejection reason | count | values |", "|---|---:|---|"]
+        out += [f"| {r} | {n} | {v} |" for r, n, v in rejection_reasons(rejected)]
         out.append("")
     if acc:
         out += [
@@ -407,6 +424,42 @@ def _loops_md(run: RunFolder) -> list[str]:
             )
         if len(acc) > len(shown):
             out.append(f"\n({len(acc) - len(shown)} more accepted loops in `loops.json`.)")
+    return out
+
+
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
+
+
+def rejection_reasons(
+    candidates: list[dict[str, Any]], max_values: int = 12
+) -> list[tuple[str, int, str]]:
+    """Rejection reasons of loop candidates grouped by their wording, most frequent first:
+    ``(reason with its values, count, the differing values)``. A number every candidate of the
+    group shares is shown as is (``< 25``), one that differs as its range (``6–23 RANSAC
+    inliers < 25``), and the values of the first differing number are listed (sorted, at most
+    ``max_values``)."""
+    groups: dict[str, list[list[str]]] = {}
+    for c in candidates:
+        reason = str(c.get("reason", "?"))
+        groups.setdefault(_NUMBER.sub("#", reason), []).append(_NUMBER.findall(reason))
+    out = []
+    for template, values in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+        parts = template.split("#")
+        text, listed = parts[0], ""
+        for k, part in enumerate(parts[1:]):
+            col = [v[k] for v in values]
+            nums = sorted(float(x) for x in col)
+            if len(set(col)) == 1:
+                text += col[0]
+            else:
+                digits = max((len(x.split(".")[1]) if "." in x else 0) for x in col)
+                text += f"{nums[0]:.{digits}f}–{nums[-1]:.{digits}f}"
+                if not listed:
+                    shown = [f"{x:.{digits}f}" for x in nums[:max_values]]
+                    more = len(nums) - len(shown)
+                    listed = ", ".join(shown) + (f", ... ({more} more)" if more > 0 else "")
+            text += part
+        out.append((text, len(values), listed))
     return out
 
 
@@ -498,7 +551,7 @@ def write_report(
         logger.warning("report without accuracy: %s", exc)
 
     plots: list[Path] = []
-    # top view
+    # trajectories in the plane of largest extent (report_topview.png)
     show_odo = run.odometry is not None and not run.odometry_identical
     trajs: dict[str, Trajectory] = {}
     if gt is not None:
@@ -517,11 +570,17 @@ def write_report(
         trajs["final"] = final
     edges = loop_edges(final, run.accepted_loops, tol=max(max_diff, 1e-3))
     top = out / TOPVIEW_PNG
+    gt_run = None if gt is None else _during(gt, run.trajectory, max_diff)
+    plane = slam_eval.plot_plane(
+        gt_run.positions
+        if gt_run is not None
+        else np.concatenate([t.positions for t in trajs.values()])
+    )
     slam_eval.plot_trajectories(
         top,
-        gt,
+        gt_run,
         trajs,
-        title=f"{title}: top view" + ("" if gt is not None else " (no ground truth)"),
+        title=f"{title}: {plane.name}" + ("" if gt is not None else " (no ground truth)"),
         loop_edges=edges,
         loop_label="accepted loop",
     )
@@ -594,9 +653,18 @@ def write_report(
     else:
         lines.append(
             "No ground truth, so no accuracy numbers; give one with `slam report RUN_DIR --gt "
-            "FILE`. The top view shows the trajectories in the SLAM world frame (first camera)."
+            "FILE`. The trajectory plot is in the SLAM world frame (first camera)."
         )
-    lines += ["", f"![top view]({TOPVIEW_PNG})", ""]
+    lines += [
+        "",
+        f"Trajectories in the {plane.name} of the "
+        + ("ground truth" if gt is not None else "SLAM world frame")
+        + f" (horizontal: {plane.u_label}, vertical: {plane.v_label}; the plane in which "
+        "the trajectory extends most), with the accepted loop edges in red.",
+        "",
+        f"![trajectories]({TOPVIEW_PNG})",
+        "",
+    ]
     if gt is not None:
         lines += [f"![translation error over time]({ERROR_PNG})", ""]
     lines += ["## Loop closure", ""] + _loops_md(run) + [""]
