@@ -1,4 +1,5 @@
-"""Trajectory metrics (ATE / RPE) with numbers identical to evo's, plus a top-view plot.
+"""Trajectory metrics (ATE / RPE) with numbers identical to evo's; the trajectory plot is in
+:mod:`slam.plots` (:func:`plot_trajectories` and :func:`save_figure` are re-exported here).
 
 Everything numeric is delegated to evo's library so that the values match the ``evo_ape`` /
 ``evo_rpe`` command line tools exactly:
@@ -24,9 +25,7 @@ from __future__ import annotations
 
 import copy
 import logging
-import os
 import re
-import tempfile
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -39,6 +38,7 @@ from evo.core.metrics import PoseRelation, Unit
 from evo.core.trajectory import PoseTrajectory3D
 
 from slam.errors import TrajectoryError
+from slam.plots import PlotPlane, plot_plane, plot_trajectories, save_figure
 from slam.trajectory import Trajectory, read_tum
 
 logger = logging.getLogger(__name__)
@@ -858,172 +858,3 @@ def evaluate_run(
     else:
         logger.warning("%s: no odometry.txt; only the final trajectory is evaluated", run_dir)
     return RunEvaluation(run_dir, source, final, odometry, identical, _loops_accepted(run_dir))
-
-
-# ----------------------------------------------------------------------------------------------
-# plotting
-
-_AXIS_NAMES = "xyz"
-#: A principal direction this close to a coordinate axis is drawn as that axis (degrees).
-_SNAP_DEG = 20.0
-
-
-@dataclass
-class PlotPlane:
-    """The plane a trajectory plot shows: unit directions ``u`` (horizontal) and ``v``
-    (vertical) in world coordinates, their axis labels, and the plane's name (``"x-y plane"``
-    when both are coordinate axes, else ``"plane of largest extent"``)."""
-
-    u: np.ndarray
-    v: np.ndarray
-    u_label: str
-    v_label: str
-    name: str
-
-    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        p = np.asarray(points, float).reshape(-1, 3)
-        return p @ self.u, p @ self.v
-
-
-def _direction_label(d: np.ndarray) -> str:
-    k = int(np.argmax(np.abs(d)))
-    if np.isclose(abs(d[k]), 1.0):
-        return _AXIS_NAMES[k]
-    terms = [(c, _AXIS_NAMES[i]) for i, c in enumerate(d) if abs(c) >= 0.005]
-    out = f"{terms[0][0]:.2f} {terms[0][1]}"
-    for c, n in terms[1:]:
-        out += f" {'-' if c < 0 else '+'} {abs(c):.2f} {n}"
-    return out
-
-
-def _snap(d: np.ndarray) -> np.ndarray:
-    k = int(np.argmax(np.abs(d)))
-    if abs(d[k]) >= np.cos(np.radians(_SNAP_DEG)):
-        e = np.zeros(3)
-        e[k] = 1.0
-        return e
-    return d * np.sign(d[k])  # the largest component positive
-
-
-def plot_plane(points: np.ndarray) -> PlotPlane:
-    """The plane in which ``points`` extend most: their two principal directions (PCA), each
-    drawn as the nearest coordinate axis when within 20 degrees of it (so a trajectory that
-    moves in a floor or table plane is shown in that plane, and a plot names x, y, z where it
-    can). Points with no spread give the x-z plane (the floor of a y-down camera)."""
-    x, z = np.eye(3)[0], np.eye(3)[2]
-    p = np.asarray(points, float).reshape(-1, 3)
-    p = p[np.all(np.isfinite(p), axis=1)]
-    if len(p) < 2 or not np.any(np.ptp(p, axis=0) > 1e-12):
-        return PlotPlane(x, z, "x", "z", "x-z plane")
-    c = p - p.mean(0)
-    w, vecs = np.linalg.eigh(c.T @ c)
-    e1 = _snap(vecs[:, 2])
-    e2 = vecs[:, 1] - (vecs[:, 1] @ e1) * e1
-    if np.linalg.norm(e2) < 1e-9 or w[1] <= 1e-12 * max(w[2], 1e-300):
-        # a line: the second direction is free; take the coordinate axis most across it
-        k = int(np.argmin(np.abs(e1) + np.array([0.0, 1e-6, 0.0])))  # prefer x, z over y
-        e2 = np.eye(3)[k] - (np.eye(3)[k] @ e1) * e1
-    e2 = _snap(e2 / np.linalg.norm(e2))
-    if np.count_nonzero(e1) == 1 and np.count_nonzero(e2) == 1:
-        a, b = sorted((int(np.argmax(e1)), int(np.argmax(e2))))
-        e1, e2 = np.eye(3)[a], np.eye(3)[b]
-        name = f"{_AXIS_NAMES[a]}-{_AXIS_NAMES[b]} plane"
-    else:
-        name = "plane of largest extent"
-    return PlotPlane(e1, e2, _direction_label(e1), _direction_label(e2), name)
-
-
-def save_figure(fig: Any, path_png: str | Path) -> Path:
-    """Save a matplotlib ``Figure`` as PNG atomically (temporary file, then rename)."""
-    path = Path(path_png)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def plot_trajectories(
-    path_png: str | Path,
-    gt: Trajectory | None,
-    trajectories: dict[str, Trajectory],
-    title: str = "",
-    loop_edges: Sequence[tuple[np.ndarray, np.ndarray]] = (),
-    loop_label: str = "loop edge",
-) -> PlotPlane:
-    """Plot of the ground truth and any number of trajectories, saved as a PNG; returns the
-    plane shown.
-
-    The plane is the one in which the ground truth (or, without one, all trajectories) extends
-    most (:func:`plot_plane`); the axis labels say which directions it spans. Trajectories are
-    plotted as given (use :func:`align_trajectory` first to overlay an estimate on the ground
-    truth). ``loop_edges`` are pairs of 3D positions joined by a thin, light line (e.g. the two
-    camera positions of an accepted loop closure; the more there are, the lighter), all under
-    one legend entry ``loop_label``. Written atomically.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.collections import LineCollection
-    from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
-
-    trajectories = dict(trajectories or {})
-    if gt is None and not trajectories:
-        raise TrajectoryError(
-            "plot_trajectories: nothing to plot (no ground truth, no trajectories)"
-        )
-    if gt is not None and len(gt):
-        ref_points = gt.positions
-    else:
-        ref_points = np.concatenate(
-            [t.positions for t in trajectories.values() if len(t)] or [np.zeros((0, 3))]
-        )
-    plane = plot_plane(ref_points)
-
-    fig = Figure(figsize=(8, 7), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    if gt is not None and len(gt):
-        pu, pv = plane.project(gt.positions)
-        ax.plot(pu, pv, color="black", linestyle="--", linewidth=1.5, label="ground truth")
-        ax.plot(pu[0], pv[0], marker="o", color="black", markersize=5, linestyle="none")
-    for name, traj in trajectories.items():
-        if len(traj) == 0:
-            logger.warning("plot_trajectories: trajectory %r is empty, skipped", name)
-            continue
-        pu, pv = plane.project(traj.positions)
-        (line,) = ax.plot(pu, pv, linewidth=1.2, label=str(name))
-        ax.plot(pu[0], pv[0], marker="o", color=line.get_color(), markersize=4, linestyle="none")
-    if len(loop_edges):
-        a = np.array([np.asarray(p0, float) for p0, _ in loop_edges])
-        b = np.array([np.asarray(p1, float) for _, p1 in loop_edges])
-        au, av = plane.project(a)
-        bu, bv = plane.project(b)
-        segs = np.stack([np.stack([au, av], 1), np.stack([bu, bv], 1)], 1)
-        alpha = float(np.clip(3.0 / np.sqrt(len(segs)), 0.12, 0.7))
-        ax.add_collection(
-            LineCollection(segs, colors="red", linewidths=0.6, alpha=alpha, zorder=3)
-        )
-        ax.plot(
-            np.r_[au, bu], np.r_[av, bv], ".", color="red", markersize=2.5, alpha=alpha, zorder=3
-        )
-        # an empty line carries the legend entry of the collection
-        proxy = Line2D([], [], color="red", linewidth=0.8, alpha=max(alpha, 0.5))
-        proxy.set_label(f"{loop_label} ({len(segs)})")
-        ax.add_line(proxy)
-    ax.set_xlabel(f"{plane.u_label} [m]")
-    ax.set_ylabel(f"{plane.v_label} [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best")
-    if title:
-        ax.set_title(title)
-    fig.tight_layout()
-    path = save_figure(fig, path_png)
-    logger.debug("wrote trajectory plot %s (%s)", path, plane.name)
-    return plane

@@ -33,6 +33,7 @@ import numpy as np
 
 from slam import eval as slam_eval
 from slam.errors import SlamError
+from slam.plots import plot_error, plot_timing
 from slam.trajectory import Trajectory, atomic_write_text, read_tum
 
 logger = logging.getLogger(__name__)
@@ -203,54 +204,7 @@ def loop_edges(
 
 
 # ----------------------------------------------------------------------------------------------
-# plots
-
-
-def _figure(figsize: tuple[float, float]) -> Any:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=figsize, dpi=100)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _plot_error(
-    path: Path,
-    curves: dict[str, tuple[np.ndarray, np.ndarray]],
-    t0: float,
-    loop_times: list[float],
-    title: str,
-) -> Path:
-    fig = _figure((9, 4.5))
-    ax = fig.add_subplot(1, 1, 1)
-    # same colours as the trajectory plot (matplotlib's cycle: odometry first when shown)
-    colors = {"odometry": "C0", "final": "C1"} if "odometry" in curves else {"final": "C0"}
-    for name, (t, err) in curves.items():
-        rmse = float(np.sqrt(np.mean(err**2)))
-        ax.plot(
-            t - t0,
-            err,
-            linewidth=1.1,
-            color=colors.get(name),
-            label=f"{name} (ATE rmse {rmse:.3f} m)",
-        )
-    for k, t_loop in enumerate(sorted(loop_times)):
-        ax.axvline(
-            t_loop - t0,
-            color="red",
-            linewidth=0.6,
-            alpha=0.35,
-            label=f"accepted loop closure ({len(loop_times)})" if k == 0 else None,
-        )
-    ax.set_xlabel("time since the first frame [s]")
-    ax.set_ylabel("translation error after alignment [m]")
-    ax.set_ylim(bottom=0)
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper left")
-    ax.set_title(title)
-    fig.tight_layout()
-    return slam_eval.save_figure(fig, path)
+# timing
 
 
 def _stages(metrics: dict[str, Any]) -> list[tuple[str, float]]:
@@ -260,68 +214,6 @@ def _stages(metrics: dict[str, Any]) -> list[tuple[str, float]]:
     out = [(k, float(v)) for k, v in totals.items() if isinstance(v, (int, float))]
     order = {k: i for i, k in enumerate(_STAGE_ORDER)}
     return sorted(out, key=lambda kv: order.get(kv[0], len(order)))
-
-
-def _plot_timing(
-    path: Path,
-    stages: list[tuple[str, float]],
-    wall_s: float,
-    tracking: dict[str, np.ndarray] | None,
-    title: str,
-) -> Path | None:
-    ms = None if tracking is None else tracking.get("ms")
-    has_ms = ms is not None and ms.dtype.kind == "f" and len(ms) > 0
-    if not stages and not has_ms:
-        return None
-    n = int(bool(stages)) + int(has_ms)
-    fig = _figure((6.0 * n, 4.5))
-    k = 1
-    if stages:
-        ax = fig.add_subplot(1, n, k)
-        k += 1
-        names = [s for s, _ in stages][::-1]
-        secs = np.array([v for _, v in stages][::-1]) / 1e3
-        bars = ax.barh(names, secs, color="tab:gray")
-        for bar, v in zip(bars, secs):
-            ax.text(
-                bar.get_width(),
-                bar.get_y() + bar.get_height() / 2,
-                f" {v:.1f} s ({100 * v / wall_s:.0f} %)" if wall_s > 0 else f" {v:.1f} s",
-                va="center",
-                fontsize=8,
-            )
-        ax.set_xlabel("total time [s] (% of the run's wall time)")
-        ax.set_xlim(0, max(float(secs.max()) * 1.35, 1e-3))
-        ax.set_title("time per stage")
-        ax.grid(True, axis="x", alpha=0.3)
-    if has_ms:
-        assert tracking is not None and ms is not None
-        ax = fig.add_subplot(1, n, k)
-        idx = tracking.get("index")
-        x = idx if idx is not None and idx.dtype.kind == "f" else np.arange(len(ms))
-        ax.plot(x, ms, linewidth=0.7, color="C0", label="tracking time per frame")
-        if len(ms) >= 15:
-            w = 15
-            smooth = np.convolve(ms, np.ones(w) / w, mode="valid")
-            ax.plot(x[w // 2 : w // 2 + len(smooth)], smooth, color="black", linewidth=1.2,
-                    label=f"moving mean ({w} frames)")  # fmt: skip
-        kf = tracking.get("keyframe")
-        if kf is not None and kf.dtype.kind == "f" and np.any(kf > 0):
-            sel = kf > 0
-            ax.plot(x[sel], ms[sel], "o", markersize=3, color="tab:green", label="keyframe")
-        ok = tracking.get("ok")
-        if ok is not None and ok.dtype.kind == "f" and np.any(ok == 0):
-            sel = ok == 0
-            ax.plot(x[sel], ms[sel], "x", markersize=6, color="red", label="tracking lost")
-        ax.set_xlabel("frame")
-        ax.set_ylabel("tracking time [ms]")
-        ax.set_ylim(bottom=0)
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
-        ax.set_title(f"tracking time per frame (median {np.nanmedian(ms):.0f} ms)")
-    fig.suptitle(title)
-    fig.tight_layout()
-    return slam_eval.save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -599,7 +491,7 @@ def write_report(
             float(c["query_timestamp"]) for c in run.accepted_loops if "query_timestamp" in c
         ]
         plots.append(
-            _plot_error(
+            plot_error(
                 out / ERROR_PNG,
                 curves,
                 float(run.trajectory.timestamps[0]),
@@ -608,7 +500,7 @@ def write_report(
             )
         )
 
-    timing = _plot_timing(
+    timing = plot_timing(
         out / TIMING_PNG, _stages(m), _wall_seconds(m), run.tracking, f"{title}: timing"
     )
     if timing is not None:
