@@ -4,4 +4,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV="${VENV:-.venv}"
 VENV="$VENV" bash scripts/setup.sh
-"$VENV/bin/slam" run --out runs/demo "$@"
+# --overwrite: runs/demo is this script's own folder, replaced on every call
+"$VENV/bin/slam" run --out runs/demo --overwrite "$@"

@@ -4,13 +4,15 @@ and the resumption of an interrupted run."""
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from slam.checkpoint import has_checkpoint
 from slam.config import SlamConfig, load_config
 from slam.data.base import Sequence
 from slam.data.loader import open_sequence
-from slam.errors import RunFolderError
+from slam.errors import ConfigError, RunFolderError
 from slam.pipeline import FrameCallback, ProgressCallback, RunResult, run, save_run
 from slam.run_folder import prepare_run_dir, remove_work_dirs
 from slam.trajectory import atomic_write_text
@@ -28,9 +30,12 @@ def run_sequence(
     checkpoint_every: int = 0,
     overwrite: bool = False,
     on_frame: FrameCallback | None = None,
+    rerun: str | Path | None = None,
 ) -> tuple[RunResult, Path]:
     """Open a sequence folder (``None``: the built-in synthetic demo), run SLAM, save the run
     folder. Config: ``config`` if given, else defaults overridden by the YAML at ``config_path``.
+    ``rerun``: also record the run for the rerun viewer into this ``.rrd`` file
+    (:class:`slam.viewer.RerunRecorder`; needs ``rgbd-slam[viz]``).
 
     Before the first frame: the config and the sequence are checked, and ``out_dir`` must be
     writable and must not hold another run unless ``overwrite`` (which deletes its outputs).
@@ -39,6 +44,8 @@ def run_sequence(
     """
     cfg = config if config is not None else load_config(config_path)
     if max_frames is not None:
+        if max_frames < 1:
+            raise ConfigError(f"max_frames must be >= 1 (or None for all), got {max_frames}")
         cfg.dataset.max_frames = max_frames
     cfg.validate()
     out = prepare_run_dir(out_dir, overwrite)
@@ -48,18 +55,59 @@ def run_sequence(
         sequence = demo_sequence_path()
     cfg.dataset.path = str(Path(sequence).resolve())
     seq: Sequence = open_sequence(sequence, cfg.dataset.layout, cfg.dataset.calibration)
+    recorder = _recorder(rerun, seq.name)
     atomic_write_text(out / "config.yaml", cfg.to_yaml())
-    result = run(
-        seq,
-        cfg,
-        progress=progress,
-        run_dir=out,
-        checkpoint_every=checkpoint_every,
-        on_frame=on_frame,
+    result = _recorded(
+        recorder,
+        lambda hook: run(
+            seq,
+            cfg,
+            progress=progress,
+            run_dir=out,
+            checkpoint_every=checkpoint_every,
+            on_frame=hook,
+        ),
+        on_frame,
+        out,
     )
-    save_run(result, out)
-    remove_work_dirs(out)
     return result, out
+
+
+def _recorder(path: str | Path | None, name: str) -> Any:
+    if path is None:
+        return None
+    from slam.viewer import RerunRecorder
+
+    return RerunRecorder(path, name=name)
+
+
+def _recorded(
+    recorder: Any,
+    run_fn: Callable[[FrameCallback | None], RunResult],
+    on_frame: FrameCallback | None,
+    out: Path,
+) -> RunResult:
+    """Run with the recorder's hook chained after ``on_frame``; save the run folder, then close
+    the recording (an unfinished one is deleted)."""
+    hook = on_frame
+    if recorder is not None:
+
+        def hook(frame, frame_result) -> None:  # type: ignore[no-redef]
+            if on_frame is not None:
+                on_frame(frame, frame_result)
+            recorder.on_frame(frame, frame_result)
+
+    try:
+        result = run_fn(hook)
+        save_run(result, out)
+    except BaseException:
+        if recorder is not None:
+            recorder.abort()
+        raise
+    remove_work_dirs(out)
+    if recorder is not None:
+        recorder.finish(result)
+    return result
 
 
 def resume_run(
@@ -67,10 +115,12 @@ def resume_run(
     progress: ProgressCallback | None = None,
     checkpoint_every: int | None = None,
     on_frame: FrameCallback | None = None,
+    rerun: str | Path | None = None,
 ) -> tuple[RunResult, Path]:
     """Continue an interrupted run from its last checkpoint, with the config it was started
     with (``run_dir/config.yaml``), and write the same outputs as an uninterrupted run.
-    ``checkpoint_every``: default the interrupted run's."""
+    ``checkpoint_every``: default the interrupted run's. ``rerun``: record the resumed frames
+    and the result into this ``.rrd`` file (``slam view`` records the whole run afterwards)."""
     run_dir = Path(run_dir)
     if (run_dir / "metrics.json").is_file():
         raise RunFolderError(f"{run_dir}: the run is complete (metrics.json); nothing to resume")
@@ -84,15 +134,19 @@ def resume_run(
     if not cfg.dataset.path:
         raise RunFolderError(f"{run_dir / 'config.yaml'}: dataset.path is missing")
     seq = open_sequence(cfg.dataset.path, cfg.dataset.layout, cfg.dataset.calibration)
-    result = run(
-        seq,
-        cfg,
-        progress=progress,
-        run_dir=run_dir,
-        checkpoint_every=checkpoint_every,
-        resume=True,
-        on_frame=on_frame,
+    recorder = _recorder(rerun, seq.name)
+    result = _recorded(
+        recorder,
+        lambda hook: run(
+            seq,
+            cfg,
+            progress=progress,
+            run_dir=run_dir,
+            checkpoint_every=checkpoint_every,
+            resume=True,
+            on_frame=hook,
+        ),
+        on_frame,
+        run_dir,
     )
-    save_run(result, run_dir)
-    remove_work_dirs(run_dir)
     return result, run_dir

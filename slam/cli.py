@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.logging import RichHandler
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from slam.cli_eval import echo_result, echo_run
 from slam.errors import SlamError
 
 # options shared by `slam eval` and `slam report`
@@ -30,9 +31,29 @@ app = typer.Typer(
 console = Console(stderr=True)
 
 
-def _setup_logging(verbose: bool) -> None:
+Verbose = Annotated[
+    int,
+    typer.Option(
+        "--verbose",
+        "-v",
+        count=True,
+        help="Log every event (lost frames, loops, relocalisations); -vv: debug detail too.",
+    ),
+]
+Quiet = Annotated[
+    bool, typer.Option("--quiet", "-q", help="Print only errors: no progress bar, no summary.")
+]
+
+
+def _setup_logging(verbose: int = 0, quiet: bool = False) -> None:
+    """Console logging: warnings by default (a run shows its progress bar and one summary),
+    per-event INFO lines with -v, DEBUG with -vv, errors only with --quiet."""
+    if quiet:
+        level = logging.ERROR
+    else:
+        level = {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
     logging.basicConfig(
-        level=logging.DEBUG if verbose else logging.INFO,
+        level=level,
         format="%(message)s",
         handlers=[RichHandler(console=console, show_path=False, show_time=False)],
         force=True,
@@ -42,6 +63,35 @@ def _setup_logging(verbose: bool) -> None:
 def _fail(exc: Exception) -> None:
     console.print(f"[bold red]error:[/] {exc}")
     raise typer.Exit(code=2)
+
+
+def _progress(*columns) -> Progress:
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        *columns,
+        TimeElapsedColumn(),
+        console=console,
+        transient=False,
+    )
+
+
+def _generate_demo(quiet: bool) -> Path:
+    """The built-in demo sequence, generated (once) as its own step with its own progress bar."""
+    from slam.demo import builtin_path, demo_sequence_path, is_generated
+
+    if is_generated() or quiet:
+        return demo_sequence_path()
+    console.print(
+        f"first run: generating the synthetic demo sequence into {builtin_path()} "
+        "(once, about a minute)"
+    )
+    with _progress() as bar:
+        task = bar.add_task("generating", total=None)
+        return demo_sequence_path(
+            progress=lambda done, total: bar.update(task, completed=done, total=total)
+        )
 
 
 @app.command()
@@ -80,7 +130,16 @@ def run(
         bool,
         typer.Option("--overwrite", help="Replace the run already in --out (deletes its outputs)."),
     ] = False,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    rerun: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--rerun",
+            help="Also record the run for the rerun 3D viewer into this .rrd file (needs "
+            "`pip install 'rgbd-slam[viz]'`; open it with `rerun FILE.rrd`).",
+        ),
+    ] = None,
+    verbose: Verbose = 0,
+    quiet: Quiet = False,
 ) -> None:
     """Track a sequence, fuse a TSDF map and write trajectory, mesh and metrics to the run folder."""
     import time
@@ -88,34 +147,37 @@ def run(
     from slam.api import resume_run, run_sequence
     from slam.pipeline import summary_line
 
-    _setup_logging(verbose)
+    _setup_logging(verbose, quiet)
     try:
         if resume is not None and (sequence is not None or config is not None or max_frames):
             raise SlamError(
                 "--resume continues a run with its own sequence and config: give no SEQUENCE, "
                 "--config or --max-frames with it"
             )
-        progress = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("{task.fields[fps]:>5.1f} fps"),
-            TextColumn("{task.fields[state]}"),
-            TimeElapsedColumn(),
-            console=console,
-            transient=False,
+        if rerun is not None:
+            from slam.viewer import check_recording_path
+
+            check_recording_path(rerun)
+        if sequence is None and resume is None:
+            sequence = _generate_demo(quiet)
+        progress = _progress(
+            TextColumn("{task.fields[fps]:>5.1f} fps"), TextColumn("{task.fields[state]}")
         )
         task = progress.add_task("tracking", total=None, fps=0.0, state="")
         t0: list[float] = []  # set at the first frame: the bar appears once frames flow
         first: list[int] = []
 
         def on_frame(done: int, total: int, status) -> None:
+            if quiet:
+                return
             if not t0:
                 progress.start()
                 t0.append(time.perf_counter())
                 first.append(done)
             fps = (done - first[0]) / max(time.perf_counter() - t0[0], 1e-9)
-            if status is None:
+            if done == total:
+                state = "finishing: pose graph, map, mesh, files"
+            elif status is None:
                 state = "[yellow]skipped (unreadable)[/]"
             elif status.ok:
                 state = f"{status.path} overlap {status.overlap:.2f}"
@@ -126,7 +188,10 @@ def run(
         try:
             if resume is not None:
                 result, run_dir = resume_run(
-                    resume, progress=on_frame, checkpoint_every=checkpoint_every or None
+                    resume,
+                    progress=on_frame,
+                    checkpoint_every=checkpoint_every or None,
+                    rerun=rerun,
                 )
             else:
                 result, run_dir = run_sequence(
@@ -137,15 +202,58 @@ def run(
                     progress=on_frame,
                     checkpoint_every=checkpoint_every,
                     overwrite=overwrite,
+                    rerun=rerun,
                 )
         finally:
-            progress.stop()
+            if t0:  # started at the first frame
+                progress.stop()
     except SlamError as exc:
         _fail(exc)
         return
+    if quiet:
+        return
     files = ", ".join(sorted(p.name for p in run_dir.iterdir() if p.is_file()))
     console.print(f"[green]wrote[/] {run_dir}: {files}")
+    if rerun is not None:
+        console.print(f"[green]wrote[/] {rerun} (open it with `rerun {rerun}`)")
     typer.echo(summary_line(result.metrics))
+
+
+@app.command()
+def view(
+    run_dir: Annotated[Path, typer.Argument(help="Run folder written by `slam run`.")],
+    out: Annotated[
+        Optional[Path],
+        typer.Option("--out", "-o", help="Recording file to write [RUN_DIR/recording.rrd]."),
+    ] = None,
+    open_viewer: Annotated[
+        bool, typer.Option("--open", help="Start the rerun viewer on it (needs a display).")
+    ] = False,
+    image_scale: Annotated[
+        int,
+        typer.Option(
+            "--image-scale",
+            min=0,
+            help="Log colour and depth at 1/N resolution (0: no images; they are read again "
+            "from the run's sequence folder).",
+        ),
+    ] = 4,
+    verbose: Verbose = 0,
+) -> None:
+    """Write the rerun 3D recording of a finished run (as `slam run --rerun` makes it while
+    running): camera, images, tracking state, trajectory, keyframes, loops, mesh."""
+    from slam.viewer import open_in_viewer, record_run_folder
+
+    _setup_logging(verbose)
+    try:
+        path = record_run_folder(run_dir, out, image_scale=image_scale)
+        typer.echo(f"wrote {path}")
+        if open_viewer:
+            open_in_viewer(path)
+        else:
+            typer.echo(f"open it with: rerun {path}")
+    except SlamError as exc:
+        _fail(exc)
 
 
 @app.command()
@@ -174,113 +282,20 @@ def synth(
     """Render a synthetic RGB-D sequence with exact ground truth (TUM layout + calibration.yaml)."""
     from slam.data.synthetic import SynthConfig, generate_sequence
 
-    _setup_logging(False)
+    _setup_logging()
     try:
-        path = generate_sequence(
-            out,
-            SynthConfig(
-                frames=frames, loop=loop, seed=seed, alias=alias, noise=noise, drift_bias=drift_bias
-            ),
+        cfg = SynthConfig(
+            frames=frames, loop=loop, seed=seed, alias=alias, noise=noise, drift_bias=drift_bias
         )
+        with _progress() as bar:
+            task = bar.add_task("rendering", total=frames)
+            path = generate_sequence(
+                out, cfg, progress=lambda done, total: bar.update(task, completed=done)
+            )
     except SlamError as exc:
         _fail(exc)
         return
     typer.echo(f"wrote {frames} frames to {path}")
-
-
-_STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
-
-
-def _fmt_stats(stats, unit: str, digits: int = 4) -> str:
-    if stats is None:
-        return "n/a"
-    return (
-        f"rmse {stats.rmse:.{digits}f}  mean {stats.mean:.{digits}f}  median "
-        f"{stats.median:.{digits}f}  std {stats.std:.{digits}f}  min {stats.min:.{digits}f}  "
-        f"max {stats.max:.{digits}f} {unit}"
-    )
-
-
-def _echo_result(res) -> None:
-    typer.echo(f"matched poses      {res.matched_poses} (alignment {res.alignment})")
-    typer.echo(f"ATE                {_fmt_stats(res.ate, 'm')}")
-    for r in res.rpe:
-        if r.trans is None:
-            typer.echo(f"RPE {r.label:<14} n/a ({r.error})")
-            continue
-        typer.echo(f"RPE {r.label:<14} trans {_fmt_stats(r.trans, 'm')}  ({r.pairs} pairs)")
-        typer.echo(f"{'':18} rot   {_fmt_stats(r.rot, 'deg', 3)}")
-    d = res.drift
-    typer.echo(
-        f"drift              {d.percent:.3f} % ({d.final_error_m:.4f} m final error over "
-        f"{d.path_length_m:.2f} m, {d.alignment} alignment)"
-    )
-
-
-def _echo_run(ev) -> None:
-    """Final vs odometry side by side."""
-    rows: list[tuple[str, str, str]] = []
-
-    def val(res, get, fmt):
-        if res is None:
-            return "-"
-        v = get(res)
-        return "n/a" if v is None else format(v, fmt)
-
-    fin, odo = ev.final, ev.odometry
-    rows.append(
-        (
-            "matched poses",
-            val(fin, lambda r: r.matched_poses, "d"),
-            val(odo, lambda r: r.matched_poses, "d"),
-        )
-    )
-    for k in _STAT_KEYS:
-        rows.append(
-            (
-                f"ATE {k} [m]",
-                val(fin, lambda r, k=k: getattr(r.ate, k), ".4f"),
-                val(odo, lambda r, k=k: getattr(r.ate, k), ".4f"),
-            )
-        )
-    for i, r in enumerate(fin.rpe):
-
-        def t(res, i=i):
-            x = res.rpe[i].trans
-            return None if x is None else x.rmse
-
-        def rot(res, i=i):
-            x = res.rpe[i].rot
-            return None if x is None else x.rmse
-
-        rows.append((f"RPE {r.label} trans rmse [m]", val(fin, t, ".4f"), val(odo, t, ".4f")))
-        rows.append((f"RPE {r.label} rot rmse [deg]", val(fin, rot, ".3f"), val(odo, rot, ".3f")))
-    rows.append(
-        (
-            "drift [%]",
-            val(fin, lambda r: r.drift.percent, ".3f"),
-            val(odo, lambda r: r.drift.percent, ".3f"),
-        )
-    )
-    rows.append(
-        (
-            "final position error [m]",
-            val(fin, lambda r: r.drift.final_error_m, ".4f"),
-            val(odo, lambda r: r.drift.final_error_m, ".4f"),
-        )
-    )
-    typer.echo(f"run          {ev.run_dir}")
-    typer.echo(f"ground truth {ev.ground_truth}")
-    if ev.loops_accepted is not None:
-        typer.echo(f"loops        {ev.loops_accepted} accepted")
-    if ev.odometry is None:
-        typer.echo("odometry     (no odometry.txt)")
-    elif ev.odometry_identical:
-        typer.echo("odometry     identical to the final trajectory (no pose corrected)")
-    width = max(len(r[0]) for r in rows)
-    typer.echo(f"{'':{width}}  {'final':>10}  {'odometry':>10}")
-    for name, a, b in rows:
-        typer.echo(f"{name:{width}}  {a:>10}  {b:>10}")
 
 
 @app.command("eval")
@@ -331,7 +346,7 @@ def eval_cmd(
     from slam import eval as slam_eval
     from slam.trajectory import read_tum
 
-    _setup_logging(False)
+    _setup_logging()
     deltas = rpe_delta or ["1f", "1s", "1m"]
     try:
         if gt.is_dir():
@@ -356,7 +371,7 @@ def eval_cmd(
             if as_json:
                 typer.echo(json.dumps(ev.as_dict()))
             else:
-                _echo_run(ev)
+                echo_run(ev)
             return
         if est is None:
             raise SlamError(
@@ -381,7 +396,7 @@ def eval_cmd(
     if as_json:
         typer.echo(json.dumps(res.as_dict()))
         return
-    _echo_result(res)
+    echo_result(res)
 
 
 @app.command("report")
@@ -401,7 +416,7 @@ def report_cmd(
     """Write RUN_DIR/report.md with plots: top view with loop edges, error over time, timing."""
     from slam.report import write_report
 
-    _setup_logging(False)
+    _setup_logging()
     try:
         rep = write_report(run_dir, out, gt_file, t_max_diff, correct_scale)
     except SlamError as exc:
@@ -432,7 +447,7 @@ def bench_cmd(
             "'local' (start a local instance with --jobs CPUs). Needs `pip install ray`.",
         ),
     ] = None,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    verbose: Verbose = 0,
 ) -> None:
     """Run every sequence x configuration of SUITE; write one table (bench.md/.csv/.json).
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 from slam.data.synthetic import SynthConfig, generate_sequence
@@ -30,13 +31,26 @@ def cache_dir() -> Path:
     return Path(base) / "rgbd-slam"
 
 
-def demo_sequence_path(name: str = "demo") -> Path:
-    """Path of a built-in synthetic sequence (:data:`BUILTIN`), generating it into the cache
-    folder on first use (about half a minute)."""
+def builtin_path(name: str = "demo") -> Path:
+    """Where a built-in synthetic sequence (:data:`BUILTIN`) lives in the cache folder."""
     if name not in BUILTIN:
         raise KeyError(f"unknown built-in sequence {name!r}; choose one of {sorted(BUILTIN)}")
-    path = cache_dir() / f"{name}-v{DEMO_VERSION}"
-    if not (path / ".complete").is_file():
+    return cache_dir() / f"{name}-v{DEMO_VERSION}"
+
+
+def is_generated(name: str = "demo") -> bool:
+    """True when the built-in sequence is already in the cache (no generation on next use)."""
+    return (builtin_path(name) / ".complete").is_file()
+
+
+def demo_sequence_path(
+    name: str = "demo", progress: Callable[[int, int], None] | None = None
+) -> Path:
+    """Path of a built-in synthetic sequence (:data:`BUILTIN`), generating it into the cache
+    folder on first use (about a minute on 2 cores; ``progress(done, total)`` after every
+    frame rendered)."""
+    path = builtin_path(name)
+    if not is_generated(name):
         log.info("generating the synthetic sequence %s into %s", name, path)
-        generate_sequence(path, BUILTIN[name])
+        generate_sequence(path, BUILTIN[name], progress=progress)
     return path

@@ -1,4 +1,5 @@
-"""Trajectory metrics (ATE / RPE) with numbers identical to evo's, plus a top-view plot.
+"""Trajectory metrics (ATE / RPE) with numbers identical to evo's; the trajectory plot is in
+:mod:`slam.plots` (:func:`plot_trajectories` and :func:`save_figure` are re-exported here).
 
 Everything numeric is delegated to evo's library so that the values match the ``evo_ape`` /
 ``evo_rpe`` command line tools exactly:
@@ -24,9 +25,7 @@ from __future__ import annotations
 
 import copy
 import logging
-import os
 import re
-import tempfile
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -39,6 +38,7 @@ from evo.core.metrics import PoseRelation, Unit
 from evo.core.trajectory import PoseTrajectory3D
 
 from slam.errors import TrajectoryError
+from slam.plots import PlotPlane, plot_plane, plot_trajectories, save_figure
 from slam.trajectory import Trajectory, read_tum
 
 logger = logging.getLogger(__name__)
@@ -60,9 +60,12 @@ __all__ = [
     "evaluate_run",
     "load_run_ground_truth",
     "parse_delta",
+    "PlotPlane",
+    "plot_plane",
     "plot_trajectories",
     "rpe",
     "save_figure",
+    "sequence_ground_truth",
 ]
 
 #: Minimum number of associated poses for any metric (Umeyama needs 3 points).
@@ -701,6 +704,41 @@ def _read_run_config(run_dir: Path) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+#: The ground-truth file of a sequence folder (TUM layout; the one evo is given).
+GROUND_TRUTH_FILE = "groundtruth.txt"
+
+
+def sequence_ground_truth(
+    seq_dir: str | Path,
+    sequence: Any = None,
+    layout: str = "auto",
+    calibration: dict[str, Any] | None = None,
+) -> tuple[Trajectory | None, str]:
+    """The ground truth runs of a sequence are evaluated against, and where it came from.
+
+    One definition for ``metrics.json`` (:func:`slam.run`) and ``slam eval RUN_DIR``
+    (:func:`load_run_ground_truth`), evo's: the folder's ``groundtruth.txt`` as it is (raw
+    poses, associated with the estimate by nearest timestamp within ``max_diff`` when
+    evaluating, as ``evo_ape`` does; not interpolated at the frame times), else the sequence
+    loader's ground truth (e.g. 7-Scenes ``*.pose.txt``; ``sequence`` when already open, else
+    the folder is opened with ``layout`` and ``calibration``). ``(None, why)`` when there is
+    none; unreadable files raise :class:`slam.errors.SlamError` subclasses.
+    """
+    seq_dir = Path(seq_dir)
+    gt_file = seq_dir / GROUND_TRUTH_FILE
+    if gt_file.is_file():
+        return read_tum(gt_file), str(gt_file)
+    if sequence is None:
+        from slam.data.loader import open_sequence
+
+        sequence = open_sequence(seq_dir, layout, calibration)
+    gt = sequence.ground_truth
+    if gt is None or len(gt) == 0:
+        why = f"{seq_dir}: the sequence has no ground truth (no {GROUND_TRUTH_FILE} or poses)"
+        return None, why
+    return gt, f"{seq_dir} ({type(sequence).__name__} ground truth)"
+
+
 def load_run_ground_truth(
     run_dir: str | Path, gt_path: str | Path | None = None
 ) -> tuple[Trajectory, str]:
@@ -708,9 +746,9 @@ def load_run_ground_truth(
 
     ``gt_path`` (a TUM file) wins when given. Otherwise the sequence folder is ``dataset.path`` in
     the run's ``config.yaml``, else ``sequence`` in its ``metrics.json`` (relative paths: to the
-    working directory, then to the run folder):
-    its ``groundtruth.txt`` when present (the file evo would read), else the sequence loader's
-    ground truth (:func:`slam.data.loader.open_sequence`, e.g. 7-Scenes ``*.pose.txt``).
+    working directory, then to the run folder), and its ground truth is
+    :func:`sequence_ground_truth` (``groundtruth.txt``, the file evo would read, else the sequence
+    loader's), the same that ``slam run`` evaluated ``metrics.json`` against.
     Raises :class:`TrajectoryError` saying what is missing and suggesting ``--gt``.
     """
     run_dir = Path(run_dir)
@@ -735,28 +773,24 @@ def load_run_ground_truth(
             f"{run_dir}: the sequence folder recorded for the run ({seq_path}) does not exist "
             f"here; give the ground-truth file with --gt FILE"
         )
-    gt_file = seq_dir / "groundtruth.txt"
-    if gt_file.is_file():
-        return read_tum(gt_file), str(gt_file)
-    from slam.data.loader import open_sequence
     from slam.errors import SlamError
 
     try:
-        seq = open_sequence(
-            seq_dir, dataset.get("layout") or "auto", dataset.get("calibration") or None
+        gt, source = sequence_ground_truth(
+            seq_dir,
+            layout=dataset.get("layout") or "auto",
+            calibration=dataset.get("calibration") or None,
         )
-        gt = seq.ground_truth
+    except TrajectoryError:
+        raise
     except SlamError as exc:
         raise TrajectoryError(
             f"{run_dir}: cannot read the ground truth of {seq_dir}: {exc}; "
             f"give the ground-truth file with --gt FILE"
         ) from exc
-    if gt is None or len(gt) == 0:
-        raise TrajectoryError(
-            f"{seq_dir}: the sequence has no ground truth (no groundtruth.txt or poses); "
-            f"give the ground-truth file with --gt FILE"
-        )
-    return gt, f"{seq_dir} ({type(seq).__name__} ground truth)"
+    if gt is None:
+        raise TrajectoryError(f"{source}; give the ground-truth file with --gt FILE")
+    return gt, source
 
 
 def _run_metrics(run_dir: Path) -> dict[str, Any]:
@@ -824,114 +858,3 @@ def evaluate_run(
     else:
         logger.warning("%s: no odometry.txt; only the final trajectory is evaluated", run_dir)
     return RunEvaluation(run_dir, source, final, odometry, identical, _loops_accepted(run_dir))
-
-
-# ----------------------------------------------------------------------------------------------
-# plotting
-
-_AXIS_NAMES = "xyz"
-# Tie-break when extents are equal: prefer x, then z, then y (a top view for y-down cameras).
-_AXIS_PREFERENCE = {0: 0, 2: 1, 1: 2}
-
-
-def _plot_axes(points: np.ndarray) -> tuple[int, int]:
-    if len(points) == 0:
-        return 0, 2
-    extent = np.ptp(points, axis=0)
-    extent = np.where(np.isfinite(extent), extent, 0.0)
-    if not np.any(extent > 0):
-        return 0, 2
-    best = sorted(range(3), key=lambda a: (-round(float(extent[a]), 12), _AXIS_PREFERENCE[a]))
-    a, b = sorted(best[:2])
-    return a, b
-
-
-def save_figure(fig: Any, path_png: str | Path) -> Path:
-    """Save a matplotlib ``Figure`` as PNG atomically (temporary file, then rename)."""
-    path = Path(path_png)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def plot_trajectories(
-    path_png: str | Path,
-    gt: Trajectory | None,
-    trajectories: dict[str, Trajectory],
-    title: str = "",
-    loop_edges: Sequence[tuple[np.ndarray, np.ndarray]] = (),
-    loop_label: str = "loop edge",
-) -> None:
-    """Top view of the ground truth and any number of trajectories, saved as a PNG.
-
-    The plane is spanned by the two axes along which the ground truth (or, without one, all
-    trajectories) extends most; x-z when undecided. Trajectories are plotted as given (use
-    :func:`align_trajectory` first to overlay an estimate on the ground truth). ``loop_edges``
-    are pairs of 3D positions joined by a line (e.g. the two camera positions of an accepted loop
-    closure), all under one legend entry ``loop_label``. Written atomically.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    trajectories = dict(trajectories or {})
-    if gt is None and not trajectories:
-        raise TrajectoryError(
-            "plot_trajectories: nothing to plot (no ground truth, no trajectories)"
-        )
-    if gt is not None and len(gt):
-        ref_points = gt.positions
-    else:
-        ref_points = np.concatenate(
-            [t.positions for t in trajectories.values() if len(t)] or [np.zeros((0, 3))]
-        )
-    a, b = _plot_axes(ref_points)
-
-    fig = Figure(figsize=(8, 7), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    if gt is not None and len(gt):
-        p = gt.positions
-        ax.plot(
-            p[:, a], p[:, b], color="black", linestyle="--", linewidth=1.5, label="ground truth"
-        )
-        ax.plot(p[0, a], p[0, b], marker="o", color="black", markersize=5, linestyle="none")
-    for name, traj in trajectories.items():
-        if len(traj) == 0:
-            logger.warning("plot_trajectories: trajectory %r is empty, skipped", name)
-            continue
-        p = traj.positions
-        (line,) = ax.plot(p[:, a], p[:, b], linewidth=1.2, label=str(name))
-        ax.plot(
-            p[0, a], p[0, b], marker="o", color=line.get_color(), markersize=4, linestyle="none"
-        )
-    for k, (p0, p1) in enumerate(loop_edges):
-        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-        ax.plot(
-            [p0[a], p1[a]],
-            [p0[b], p1[b]],
-            color="red",
-            linewidth=0.9,
-            alpha=0.75,
-            marker=".",
-            markersize=4,
-            label=f"{loop_label} ({len(loop_edges)})" if k == 0 else None,
-            zorder=3,
-        )
-    ax.set_xlabel(f"{_AXIS_NAMES[a]} [m]")
-    ax.set_ylabel(f"{_AXIS_NAMES[b]} [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best")
-    if title:
-        ax.set_title(title)
-    fig.tight_layout()
-    path = save_figure(fig, path_png)
-    logger.debug("wrote trajectory plot %s", path)

@@ -26,7 +26,7 @@ from slam.frontend.tracker import TrackingStatus
 from slam.mapping.tsdf import write_mesh
 from slam.results import RunResult
 from slam.system import FrameResult, Slam
-from slam.trajectory import Trajectory, atomic_write_text, write_tum
+from slam.trajectory import Trajectory, as_written, atomic_write_text, write_tum
 
 __all__ = ["FrameCallback", "ProgressCallback", "RunResult", "run", "save_run"]
 
@@ -131,9 +131,7 @@ def run(
     if resume:
         m["resumed_at_frame"] = start
     m["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
-    gt = sequence.ground_truth
-    if gt is not None:
-        m.update(_evaluate(gt, result.trajectory, result.odometry))
+    m.update(evaluate_against_ground_truth(sequence, result.trajectory, result.odometry))
     log.info("%s: %s", sequence.name, summary_line(m))
     return result
 
@@ -152,23 +150,40 @@ def summary_line(m: dict[str, Any]) -> str:
     return line
 
 
-def _evaluate(gt: Trajectory, traj: Trajectory, odometry: Trajectory) -> dict[str, Any]:
+def evaluate_against_ground_truth(
+    sequence: Sequence, traj: Trajectory, odometry: Trajectory
+) -> dict[str, Any]:
+    """The ``metrics.json`` accuracy keys: ``ate_rmse_m``, ``ate_rmse_odometry_m``,
+    ``rpe_trans_rmse_m``, ``rpe_rot_rmse_deg``, ``matched_poses``, ``drift_percent`` (``{}``
+    without ground truth; ``evaluation_error`` when it fails).
+
+    The same numbers as ``slam eval RUN_DIR`` (``final`` and ``odometry`` ATE RMSE, RPE over
+    1 frame, matched poses, drift): the same ground truth (:func:`slam.eval.sequence_ground_truth`,
+    evo's definition: ``groundtruth.txt`` associated by nearest timestamp within 0.01 s), and
+    the trajectories as they are written to the run folder (TUM text precision).
+    """
     from slam import eval as slam_eval
 
-    out: dict[str, Any] = {}
     try:
-        final = slam_eval.evaluate(gt, traj)
-        same = np.array_equal(traj.poses, odometry.poses)  # no correction applied (yet)
-        odo_rmse = final["ate_rmse_m"] if same else slam_eval.ate(gt, odometry).rmse
+        gt, source = slam_eval.sequence_ground_truth(sequence.path, sequence)
+        if gt is None:
+            log.debug("no evaluation: %s", source)
+            return {}
+        final = slam_eval.evaluate(gt, as_written(traj))
+        same = len(traj) == len(odometry) and np.array_equal(traj.poses, odometry.poses)
+        odo_rmse = final["ate_rmse_m"] if same else slam_eval.ate(gt, as_written(odometry)).rmse
     except SlamError as exc:
         log.warning("evaluation against ground truth failed: %s", exc)
         return {"evaluation_error": str(exc)}
-    out["ate_rmse_m"] = final["ate_rmse_m"]
-    out["ate_rmse_odometry_m"] = odo_rmse
-    out["rpe_trans_rmse_m"] = final["rpe_trans_rmse_m"]
-    out["rpe_rot_rmse_deg"] = final["rpe_rot_rmse_deg"]
-    out["matched_poses"] = final["matched_poses"]
-    return out
+    out = {
+        "ate_rmse_m": final["ate_rmse_m"],
+        "ate_rmse_odometry_m": odo_rmse,
+        "rpe_trans_rmse_m": final["rpe_trans_rmse_m"],
+        "rpe_rot_rmse_deg": final["rpe_rot_rmse_deg"],
+        "matched_poses": final["matched_poses"],
+        "drift_percent": final["drift_percent"],  # NaN (no path) is written as null
+    }
+    return {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in out.items()}
 
 
 def save_run(result: RunResult, out_dir: str | Path) -> Path:

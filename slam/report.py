@@ -5,14 +5,16 @@
 writes, next to them or into ``out_dir``:
 
 * ``report_topview.png``: ground truth, odometry and final trajectory (each SE(3)-aligned to the
-  ground truth as ATE aligns it) seen from above, with the accepted loop-closure edges
+  ground truth as ATE aligns it) in the plane in which the ground truth extends most (its axes
+  labelled; a coordinate plane such as x-y when it is close to one), with the accepted
+  loop-closure edges drawn thin and light
 * ``report_error.png``: translation error of odometry and final trajectory over time, with the
   times of accepted loop closures marked
 * ``report_timing.png``: total time per pipeline stage and tracking time of every frame
 * ``report.md``: the numbers (ATE, RPE, drift for both trajectories, loops, tracking, timing)
   and the plots
 
-Every input but ``trajectory.txt`` is optional: without ground truth the top view shows the
+Every input but ``trajectory.txt`` is optional: without ground truth the trajectory plot shows the
 trajectories in the SLAM world frame and there is no error plot; without ``loops.json`` no loop
 edges are drawn. Plots use matplotlib's Agg backend (no display needed).
 """
@@ -23,7 +25,6 @@ import csv
 import json
 import logging
 import re
-from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,11 +33,19 @@ import numpy as np
 
 from slam import eval as slam_eval
 from slam.errors import SlamError
+from slam.plots import plot_error, plot_timing
 from slam.trajectory import Trajectory, atomic_write_text, read_tum
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Report", "RunFolder", "load_run_folder", "loop_edges", "write_report"]
+__all__ = [
+    "Report",
+    "RunFolder",
+    "load_run_folder",
+    "loop_edges",
+    "rejection_reasons",
+    "write_report",
+]
 
 TOPVIEW_PNG = "report_topview.png"
 ERROR_PNG = "report_error.png"
@@ -157,6 +166,16 @@ def load_run_folder(run_dir: str | Path) -> RunFolder:
     return run
 
 
+def _during(gt: Trajectory, traj: Trajectory, tol: float) -> Trajectory:
+    """The ground truth over the time the trajectory covers (a run of part of a sequence, or
+    motion capture that starts before the camera, would otherwise draw what was not run)."""
+    if len(traj) == 0:
+        return gt
+    t = gt.timestamps
+    keep = (t >= traj.timestamps[0] - tol) & (t <= traj.timestamps[-1] + tol)
+    return Trajectory(t[keep], gt.poses[keep]) if np.count_nonzero(keep) >= 2 else gt
+
+
 def _index_at(stamps: np.ndarray, t: float, tol: float) -> int | None:
     i = int(np.argmin(np.abs(stamps - t)))
     return i if abs(stamps[i] - t) <= tol else None
@@ -185,54 +204,7 @@ def loop_edges(
 
 
 # ----------------------------------------------------------------------------------------------
-# plots
-
-
-def _figure(figsize: tuple[float, float]) -> Any:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=figsize, dpi=100)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _plot_error(
-    path: Path,
-    curves: dict[str, tuple[np.ndarray, np.ndarray]],
-    t0: float,
-    loop_times: list[float],
-    title: str,
-) -> Path:
-    fig = _figure((9, 4.5))
-    ax = fig.add_subplot(1, 1, 1)
-    # same colours as the top view (matplotlib's cycle: odometry first when shown)
-    colors = {"odometry": "C0", "final": "C1"} if "odometry" in curves else {"final": "C0"}
-    for name, (t, err) in curves.items():
-        rmse = float(np.sqrt(np.mean(err**2)))
-        ax.plot(
-            t - t0,
-            err,
-            linewidth=1.1,
-            color=colors.get(name),
-            label=f"{name} (ATE rmse {rmse:.3f} m)",
-        )
-    for k, t_loop in enumerate(sorted(loop_times)):
-        ax.axvline(
-            t_loop - t0,
-            color="red",
-            linewidth=0.6,
-            alpha=0.35,
-            label=f"accepted loop closure ({len(loop_times)})" if k == 0 else None,
-        )
-    ax.set_xlabel("time since the first frame [s]")
-    ax.set_ylabel("translation error after alignment [m]")
-    ax.set_ylim(bottom=0)
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper left")
-    ax.set_title(title)
-    fig.tight_layout()
-    return slam_eval.save_figure(fig, path)
+# timing
 
 
 def _stages(metrics: dict[str, Any]) -> list[tuple[str, float]]:
@@ -242,68 +214,6 @@ def _stages(metrics: dict[str, Any]) -> list[tuple[str, float]]:
     out = [(k, float(v)) for k, v in totals.items() if isinstance(v, (int, float))]
     order = {k: i for i, k in enumerate(_STAGE_ORDER)}
     return sorted(out, key=lambda kv: order.get(kv[0], len(order)))
-
-
-def _plot_timing(
-    path: Path,
-    stages: list[tuple[str, float]],
-    wall_s: float,
-    tracking: dict[str, np.ndarray] | None,
-    title: str,
-) -> Path | None:
-    ms = None if tracking is None else tracking.get("ms")
-    has_ms = ms is not None and ms.dtype.kind == "f" and len(ms) > 0
-    if not stages and not has_ms:
-        return None
-    n = int(bool(stages)) + int(has_ms)
-    fig = _figure((6.0 * n, 4.5))
-    k = 1
-    if stages:
-        ax = fig.add_subplot(1, n, k)
-        k += 1
-        names = [s for s, _ in stages][::-1]
-        secs = np.array([v for _, v in stages][::-1]) / 1e3
-        bars = ax.barh(names, secs, color="tab:gray")
-        for bar, v in zip(bars, secs):
-            ax.text(
-                bar.get_width(),
-                bar.get_y() + bar.get_height() / 2,
-                f" {v:.1f} s ({100 * v / wall_s:.0f} %)" if wall_s > 0 else f" {v:.1f} s",
-                va="center",
-                fontsize=8,
-            )
-        ax.set_xlabel("total time [s] (% of the run's wall time)")
-        ax.set_xlim(0, max(float(secs.max()) * 1.35, 1e-3))
-        ax.set_title("time per stage")
-        ax.grid(True, axis="x", alpha=0.3)
-    if has_ms:
-        assert tracking is not None and ms is not None
-        ax = fig.add_subplot(1, n, k)
-        idx = tracking.get("index")
-        x = idx if idx is not None and idx.dtype.kind == "f" else np.arange(len(ms))
-        ax.plot(x, ms, linewidth=0.7, color="C0", label="tracking time per frame")
-        if len(ms) >= 15:
-            w = 15
-            smooth = np.convolve(ms, np.ones(w) / w, mode="valid")
-            ax.plot(x[w // 2 : w // 2 + len(smooth)], smooth, color="black", linewidth=1.2,
-                    label=f"moving mean ({w} frames)")  # fmt: skip
-        kf = tracking.get("keyframe")
-        if kf is not None and kf.dtype.kind == "f" and np.any(kf > 0):
-            sel = kf > 0
-            ax.plot(x[sel], ms[sel], "o", markersize=3, color="tab:green", label="keyframe")
-        ok = tracking.get("ok")
-        if ok is not None and ok.dtype.kind == "f" and np.any(ok == 0):
-            sel = ok == 0
-            ax.plot(x[sel], ms[sel], "x", markersize=6, color="red", label="tracking lost")
-        ax.set_xlabel("frame")
-        ax.set_ylabel("tracking time [ms]")
-        ax.set_ylim(bottom=0)
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
-        ax.set_title(f"tracking time per frame (median {np.nanmedian(ms):.0f} ms)")
-    fig.suptitle(title)
-    fig.tight_layout()
-    return slam_eval.save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -380,14 +290,13 @@ def _loops_md(run: RunFolder) -> list[str]:
     rejected = [c for c in run.loops if not c.get("accepted")]
     out = [
         f"{len(run.loops)} loop candidates verified: **{len(acc)} accepted**, "
-        f"{len(rejected)} rejected. Accepted loops are the red edges in the top view "
+        f"{len(rejected)} rejected. Accepted loops are the red edges in the trajectory plot "
         "(between the two camera positions of the final trajectory).",
         "",
     ]
     if rejected:
-        reasons = Counter(re.sub(r"\d+(\.\d+)?", "#", str(c.get("reason", "?"))) for c in rejected)
-        out += ["| rejection reason | count |", "|---|---:|"]
-        out += [f"| {r} | {n} |" for r, n in reasons.most_common()]
+        out += ["| rejection reason | count | values |", "|---|---:|---|"]
+        out += [f"| {r} | {n} | {v} |" for r, n, v in rejection_reasons(rejected)]
         out.append("")
     if acc:
         out += [
@@ -407,6 +316,42 @@ def _loops_md(run: RunFolder) -> list[str]:
             )
         if len(acc) > len(shown):
             out.append(f"\n({len(acc) - len(shown)} more accepted loops in `loops.json`.)")
+    return out
+
+
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
+
+
+def rejection_reasons(
+    candidates: list[dict[str, Any]], max_values: int = 12
+) -> list[tuple[str, int, str]]:
+    """Rejection reasons of loop candidates grouped by their wording, most frequent first:
+    ``(reason with its values, count, the differing values)``. A number every candidate of the
+    group shares is shown as is (``< 25``), one that differs as its range (``6–23 RANSAC
+    inliers < 25``), and the values of the first differing number are listed (sorted, at most
+    ``max_values``)."""
+    groups: dict[str, list[list[str]]] = {}
+    for c in candidates:
+        reason = str(c.get("reason", "?"))
+        groups.setdefault(_NUMBER.sub("#", reason), []).append(_NUMBER.findall(reason))
+    out = []
+    for template, values in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+        parts = template.split("#")
+        text, listed = parts[0], ""
+        for k, part in enumerate(parts[1:]):
+            col = [v[k] for v in values]
+            nums = sorted(float(x) for x in col)
+            if len(set(col)) == 1:
+                text += col[0]
+            else:
+                digits = max((len(x.split(".")[1]) if "." in x else 0) for x in col)
+                text += f"{nums[0]:.{digits}f}–{nums[-1]:.{digits}f}"
+                if not listed:
+                    shown = [f"{x:.{digits}f}" for x in nums[:max_values]]
+                    more = len(nums) - len(shown)
+                    listed = ", ".join(shown) + (f", ... ({more} more)" if more > 0 else "")
+            text += part
+        out.append((text, len(values), listed))
     return out
 
 
@@ -498,7 +443,7 @@ def write_report(
         logger.warning("report without accuracy: %s", exc)
 
     plots: list[Path] = []
-    # top view
+    # trajectories in the plane of largest extent (report_topview.png)
     show_odo = run.odometry is not None and not run.odometry_identical
     trajs: dict[str, Trajectory] = {}
     if gt is not None:
@@ -517,11 +462,17 @@ def write_report(
         trajs["final"] = final
     edges = loop_edges(final, run.accepted_loops, tol=max(max_diff, 1e-3))
     top = out / TOPVIEW_PNG
+    gt_run = None if gt is None else _during(gt, run.trajectory, max_diff)
+    plane = slam_eval.plot_plane(
+        gt_run.positions
+        if gt_run is not None
+        else np.concatenate([t.positions for t in trajs.values()])
+    )
     slam_eval.plot_trajectories(
         top,
-        gt,
+        gt_run,
         trajs,
-        title=f"{title}: top view" + ("" if gt is not None else " (no ground truth)"),
+        title=f"{title}: {plane.name}" + ("" if gt is not None else " (no ground truth)"),
         loop_edges=edges,
         loop_label="accepted loop",
     )
@@ -540,7 +491,7 @@ def write_report(
             float(c["query_timestamp"]) for c in run.accepted_loops if "query_timestamp" in c
         ]
         plots.append(
-            _plot_error(
+            plot_error(
                 out / ERROR_PNG,
                 curves,
                 float(run.trajectory.timestamps[0]),
@@ -549,7 +500,7 @@ def write_report(
             )
         )
 
-    timing = _plot_timing(
+    timing = plot_timing(
         out / TIMING_PNG, _stages(m), _wall_seconds(m), run.tracking, f"{title}: timing"
     )
     if timing is not None:
@@ -594,9 +545,18 @@ def write_report(
     else:
         lines.append(
             "No ground truth, so no accuracy numbers; give one with `slam report RUN_DIR --gt "
-            "FILE`. The top view shows the trajectories in the SLAM world frame (first camera)."
+            "FILE`. The trajectory plot is in the SLAM world frame (first camera)."
         )
-    lines += ["", f"![top view]({TOPVIEW_PNG})", ""]
+    lines += [
+        "",
+        f"Trajectories in the {plane.name} of the "
+        + ("ground truth" if gt is not None else "SLAM world frame")
+        + f" (horizontal: {plane.u_label}, vertical: {plane.v_label}; the plane in which "
+        "the trajectory extends most), with the accepted loop edges in red.",
+        "",
+        f"![trajectories]({TOPVIEW_PNG})",
+        "",
+    ]
     if gt is not None:
         lines += [f"![translation error over time]({ERROR_PNG})", ""]
     lines += ["## Loop closure", ""] + _loops_md(run) + [""]

@@ -28,6 +28,7 @@ RUN_FILES = (
     "loops.json",
     "pose_graph.g2o",
     "report.md",
+    "recording.rrd",
 )
 RUN_GLOBS = ("report_*.png", "segment_*.txt")
 #: Working folders of a run in progress.

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,32 +51,43 @@ def read_tum(path: str | Path) -> Trajectory:
     path = Path(path)
     if not path.is_file():
         raise TrajectoryError(f"{path}: trajectory file not found")
+    with path.open() as f:
+        return parse_tum(f, str(path))
+
+
+def parse_tum(lines: Iterable[str], source: str = "<text>") -> Trajectory:
+    """Parse TUM-format lines (``source`` names them in errors), as :func:`read_tum` does."""
     stamps: list[float] = []
     poses: list[np.ndarray] = []
-    with path.open() as f:
-        for lineno, line in enumerate(f, 1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            parts = line.replace(",", " ").split()
-            if len(parts) != 8:
-                raise TrajectoryError(
-                    f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
-                    f"got {len(parts)}: {line[:80]!r}"
-                )
-            try:
-                values = np.array([float(p) for p in parts])
-            except ValueError as exc:
-                raise TrajectoryError(f"{path}:{lineno}: not a number: {line[:80]!r}") from exc
-            if not np.all(np.isfinite(values)):
-                raise TrajectoryError(f"{path}:{lineno}: non-finite value: {line[:80]!r}")
-            if np.linalg.norm(values[4:8]) < 1e-9:
-                raise TrajectoryError(f"{path}:{lineno}: zero quaternion")
-            stamps.append(values[0])
-            poses.append(tum_to_pose(values[1:]))
+    for lineno, line in enumerate(lines, 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.replace(",", " ").split()
+        if len(parts) != 8:
+            raise TrajectoryError(
+                f"{source}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
+                f"got {len(parts)}: {line[:80]!r}"
+            )
+        try:
+            values = np.array([float(p) for p in parts])
+        except ValueError as exc:
+            raise TrajectoryError(f"{source}:{lineno}: not a number: {line[:80]!r}") from exc
+        if not np.all(np.isfinite(values)):
+            raise TrajectoryError(f"{source}:{lineno}: non-finite value: {line[:80]!r}")
+        if np.linalg.norm(values[4:8]) < 1e-9:
+            raise TrajectoryError(f"{source}:{lineno}: zero quaternion")
+        stamps.append(values[0])
+        poses.append(tum_to_pose(values[1:]))
     if not stamps:
-        raise TrajectoryError(f"{path}: no poses in file")
+        raise TrajectoryError(f"{source}: no poses in file")
     return Trajectory(np.array(stamps), np.stack(poses))
+
+
+def as_written(traj: Trajectory) -> Trajectory:
+    """The trajectory exactly as :func:`read_tum` reads it back after :func:`write_tum` (rounded
+    to the file's precision), so numbers computed from it equal those computed from the file."""
+    return parse_tum(format_tum(traj).splitlines(), "<as written>")
 
 
 def format_tum(traj: Trajectory) -> str:

@@ -85,3 +85,23 @@ def synth_loop_320(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("synth") / "loop320"
     cfg = SynthConfig.half_resolution(frames=300, loop=True, seed=1)
     return generate_sequence(out, cfg)
+
+
+@pytest.fixture(scope="session")
+def recorded_run(tmp_path_factory) -> tuple[Path, Path]:
+    """A short SLAM run (30 frames of a 320x240 synthetic loop) written to a run folder and
+    recorded for rerun with ``slam.api.run_sequence(rerun=...)``: (run folder, .rrd file)."""
+    pytest.importorskip("rerun", reason="rerun-sdk (the viz extra) is not installed")
+    from slam.api import run_sequence
+    from slam.config import config_from_dict
+    from slam.data.synthetic import SynthConfig, generate_sequence
+
+    root = tmp_path_factory.mktemp("recorded")
+    seq = generate_sequence(
+        root / "seq", SynthConfig.half_resolution(frames=300, render_frames=30, loop=True, seed=2)
+    )
+    rrd = root / "live.rrd"
+    _, run_dir = run_sequence(
+        seq, root / "run", config=config_from_dict({"tracking": {"downsample": 1}}), rerun=rrd
+    )
+    return run_dir, rrd

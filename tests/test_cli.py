@@ -1,14 +1,21 @@
 import json
 
 import numpy as np
+import yaml
 from typer.testing import CliRunner
 
 from slam import eval as slam_eval
 from slam.cli import app
+from slam.data.calibration import read_calibration_yaml
 from slam.geometry import exp_se3
 from slam.trajectory import Trajectory, read_tum, write_tum
 
 runner = CliRunner()
+
+
+def flat(text: str) -> str:
+    """CLI output with rich's line wrapping undone."""
+    return " ".join(text.split())
 
 
 def test_eval_json_matches_library(tmp_path):
@@ -93,3 +100,71 @@ def test_bad_config_is_a_clear_error(tmp_path):
     )
     assert res.exit_code == 2
     assert "no_such_key" in res.output
+
+
+def test_run_with_calibration_from_the_config(tmp_path):
+    """A sequence folder with no calibration.yaml and no freiburg in its name runs when the
+    config gives the intrinsics in dataset.calibration, as the error message says."""
+    from slam.data.synthetic import SynthConfig, generate_sequence
+
+    seq = generate_sequence(
+        tmp_path / "mycam", SynthConfig.half_resolution(frames=300, render_frames=5)
+    )
+    calib = read_calibration_yaml(seq / "calibration.yaml")
+    (seq / "calibration.yaml").unlink()
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["run", str(seq), "--out", str(out), "--max-frames", "4"])
+    assert res.exit_code == 2
+    assert "dataset.calibration" in flat(res.output)
+    cfg = tmp_path / "calib.yaml"
+    cfg.write_text(yaml.safe_dump({"dataset": {"calibration": calib.to_dict()}}))
+    res = runner.invoke(
+        app, ["run", str(seq), "--out", str(out), "--max-frames", "4", "--config", str(cfg)]
+    )
+    assert res.exit_code == 0, res.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == 4 and metrics["tracking_failures"] == 0
+
+
+def test_console_is_quiet_by_default_verbose_and_quiet(tmp_path):
+    """Default: the summary line, no INFO lines (a real run printed ~440: one per loop and
+    graph update); -v: the per-event lines; -q: nothing at all."""
+    from slam.data.synthetic import SynthConfig, generate_sequence
+
+    seq = generate_sequence(
+        tmp_path / "seq", SynthConfig.half_resolution(frames=300, render_frames=6)
+    )
+    args = ["run", str(seq), "--max-frames", "5", "--overwrite", "--out", str(tmp_path / "r")]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert "INFO" not in res.output
+    assert "5 frames" in res.stdout and "ATE RMSE" in res.stdout
+    res = runner.invoke(app, [*args, "-v"])
+    assert res.exit_code == 0, res.output
+    assert "INFO" in res.output and "DEBUG" not in res.output
+    res = runner.invoke(app, [*args, "--quiet"])
+    assert res.exit_code == 0, res.output
+    assert res.output == ""
+    res = runner.invoke(app, ["eval", str(tmp_path / "r")])
+    assert res.exit_code == 0 and "INFO" not in res.output
+
+
+def test_demo_generation_is_its_own_step(tmp_path, monkeypatch):
+    """`slam run` with no sequence generates the demo once, as a step of its own that says so
+    (its progress bar used to sit at 0/? while the sequence was generated)."""
+    from slam import demo
+    from slam.data.synthetic import SynthConfig
+
+    monkeypatch.setenv("SLAM_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setitem(
+        demo.BUILTIN, "demo", SynthConfig.half_resolution(frames=300, render_frames=5)
+    )
+    args = ["run", "--max-frames", "4", "--overwrite", "--out", str(tmp_path / "r")]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    text = flat(res.output)
+    assert "generating the synthetic demo sequence" in text and "generating" in text
+    assert demo.is_generated()
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert "generating" not in res.output

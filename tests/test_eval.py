@@ -412,17 +412,6 @@ def test_plot_trajectories(tmp_path):
         plot_trajectories(tmp_path / "empty.png", None, {})
 
 
-def test_plot_axes_choice():
-    from slam.eval import _plot_axes
-
-    rng = np.random.default_rng(1)
-    pts = rng.normal(size=(100, 3)) * [3.0, 0.1, 2.0]
-    assert _plot_axes(pts) == (0, 2)  # floor plane of a y-down camera
-    assert _plot_axes(rng.normal(size=(100, 3)) * [0.1, 3.0, 2.0]) == (1, 2)
-    assert _plot_axes(np.zeros((5, 3))) == (0, 2)
-    assert _plot_axes(np.array([[0, 0, 0], [1, 1, 1.0]])) == (0, 2)  # tie -> x-z
-
-
 # ----------------------------------------------------------------------------------------------
 # real ground truth
 

@@ -171,7 +171,8 @@ def test_full_report(tmp_path):
     assert f"| RPE 1 s translation rmse [m] | {rp.trans.rmse:.4f} |" in md
     # loops: counts, grouped rejection reasons, accepted table
     assert "5 loop candidates verified: **2 accepted**, 3 rejected" in md
-    assert "| # RANSAC inliers < # | 2 |" in md and "| overlap # < # | 1 |" in md
+    assert "| 7–18 RANSAC inliers < 25 | 2 | 7, 18 |" in md  # values, not templates
+    assert "| overlap 0.45 < 0.5 | 1 |  |" in md
     assert "| 230 | 5 | 7.5 | 0.410 | 120 | 0.70 | 0.66 |" in md
     # tracking and timing
     assert "tracking failures: 1" in md and "lost: 1" in md
@@ -265,3 +266,23 @@ def test_report_on_7scenes_ground_truth(tmp_path):
     assert rep.evaluation.ground_truth == str(seq / "groundtruth.txt")
     for p in rep.plots:
         assert_png(p)
+
+
+def test_rejection_reasons_show_values():
+    from slam.report import rejection_reasons
+
+    cands = [{"reason": f"{n} RANSAC inliers < 25"} for n in (6, 23, 12, 23)]
+    cands += [{"reason": "ICP fitness 0.27 < 0.3"}, {"reason": "overlap 0.41 < 0.5"}]
+    cands += [{"reason": "overlap 0.48 < 0.5"}, {"reason": "inconsistent with odometry: 0.12 m"}]
+    rows = rejection_reasons(cands, max_values=3)
+    assert rows[0] == ("6–23 RANSAC inliers < 25", 4, "6, 12, 23, ... (1 more)")
+    assert ("overlap 0.41–0.48 < 0.5", 2, "0.41, 0.48") in rows
+    assert ("ICP fitness 0.27 < 0.3", 1, "") in rows
+    assert ("inconsistent with odometry: 0.12 m", 1, "") in rows
+
+
+def test_trajectory_plot_names_its_plane(tmp_path):
+    """TUM-like ground truth (z up, motion in x-y): the plot is the x-y plane and says so."""
+    run = make_run(tmp_path)
+    md = write_report(run).markdown.read_text()
+    assert "Trajectories in the x-y plane of the ground truth (horizontal: x, vertical: y;" in md

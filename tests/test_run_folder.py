@@ -87,10 +87,24 @@ def test_cli_run_overwrite_replaces_the_old_run(synth_loop_320, tmp_path):
     assert "0 lost, 0 skipped" in flat(res.output)
 
 
-def test_max_frames_must_be_positive(tmp_path):
-    res = runner.invoke(app, ["run", "--max-frames", "-1", "--out", str(tmp_path / "r")])
+@pytest.mark.parametrize("n", ["-1", "0"])
+def test_max_frames_must_be_positive(tmp_path, n):
+    """-1 used to drop the last frame silently (a Python slice); 0 and -1 are refused, naming
+    the flag, before any work."""
+    res = runner.invoke(app, ["run", "--max-frames", n, "--out", str(tmp_path / "r")])
     assert res.exit_code == 2
-    assert "--max-frames" in flat(res.output)
+    assert "--max-frames" in flat(res.output) and "greater than or equal to 1" in flat(res.output)
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("n", [-1, 0])
+def test_api_max_frames_must_be_positive(tmp_path, n):
+    from slam.api import run_sequence
+    from slam.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"max_frames must be >= 1 .*got {n}"):
+        run_sequence(tmp_path, tmp_path / "r", max_frames=n)
+    assert not (tmp_path / "r").exists()
 
 
 @pytest.mark.slow

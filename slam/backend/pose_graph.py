@@ -124,7 +124,7 @@ class PoseGraph:
         report = OptimizationReport(
             opt.iterations(), before, after, (time.perf_counter() - t0) * 1e3
         )
-        log.info(
+        log.debug(
             "pose graph: %d nodes, %d edges (%d loops): error %.3g -> %.3g in %d iterations, %.1f ms",
             len(self.nodes),
             len(self.edges),

@@ -73,3 +73,29 @@ def apply_overrides(calib: Calibration, overrides: dict[str, Any] | None) -> Cal
             raise CalibrationError(f"unknown calibration override {key!r}; expected one of {KEYS}")
         values[key] = value
     return Calibration(**values)
+
+
+def from_overrides(overrides: dict[str, Any] | None) -> Calibration | None:
+    """A calibration made of the overrides alone when they give every key (:data:`KEYS`), else
+    ``None``: how a folder without ``calibration.yaml`` gets its intrinsics from the config."""
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    if any(k not in given for k in KEYS):
+        return None
+    unknown = sorted(set(given) - set(KEYS))
+    if unknown:
+        raise CalibrationError(
+            f"unknown calibration override {unknown[0]!r}; expected one of {KEYS}"
+        )
+    try:
+        return Calibration(
+            width=int(given["width"]),
+            height=int(given["height"]),
+            **{k: float(given[k]) for k in ("fx", "fy", "cx", "cy", "depth_scale")},
+        )
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"dataset.calibration: non-numeric value: {exc}") from exc
+
+
+def missing_overrides(overrides: dict[str, Any] | None) -> list[str]:
+    """The calibration keys the overrides do not give (null counts as not given)."""
+    return [k for k in KEYS if (overrides or {}).get(k) is None]

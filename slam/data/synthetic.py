@@ -29,6 +29,7 @@ import os
 import re
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
@@ -741,8 +742,13 @@ def _imwrite(path: Path, image: np.ndarray) -> None:
         raise DatasetError(f"{path}: cv2.imwrite failed")
 
 
-def generate_sequence(out_dir: str | Path, cfg: SynthConfig | None = None) -> Path:
+def generate_sequence(
+    out_dir: str | Path,
+    cfg: SynthConfig | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
     """Render a synthetic sequence into ``out_dir`` in the TUM RGB-D layout and return its path.
+    ``progress(frames done, frames total)`` is called after every rendered frame.
 
     Writes ``rgb/NNNNNN.png``, ``depth/NNNNNN.png`` (uint16, metres * depth_scale, 0 = none),
     ``rgb.txt``, ``depth.txt``, ``groundtruth.txt`` (camera-to-world), ``calibration.yaml``,
@@ -791,6 +797,8 @@ def generate_sequence(out_dir: str | Path, cfg: SynthConfig | None = None) -> Pa
                 pending.pop(0).result()
             if (i + 1) % 100 == 0:
                 log.debug("rendered %d/%d frames", i + 1, len(traj))
+            if progress is not None:
+                progress(i + 1, len(traj))
         for fut in pending:
             fut.result()
 

@@ -9,7 +9,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from slam.data.base import Calibration, Frame, Sequence
-from slam.data.calibration import apply_overrides, read_calibration_yaml, tum_default_for
+from slam.data.calibration import (
+    KEYS,
+    apply_overrides,
+    from_overrides,
+    missing_overrides,
+    read_calibration_yaml,
+    tum_default_for,
+)
 from slam.data.images import read_color, read_depth
 from slam.errors import CalibrationError, DatasetError, TrajectoryError
 from slam.trajectory import Trajectory, read_tum
@@ -160,12 +167,14 @@ class TumSequence(Sequence):
             self._stamps = depth_stamps
             self._rgb = None
             self._depth = depth_names
-        self.calibration = apply_overrides(self._find_calibration(), calibration_overrides)
+        self.calibration = apply_overrides(
+            self._find_calibration(calibration_overrides), calibration_overrides
+        )
         self._gt: Trajectory | None = None
         self._gt_loaded = False
         self._check_first_files()
 
-    def _find_calibration(self) -> Calibration:
+    def _find_calibration(self, overrides: dict | None) -> Calibration:
         yaml_path = self.path / "calibration.yaml"
         if yaml_path.is_file():
             return read_calibration_yaml(yaml_path)
@@ -173,10 +182,22 @@ class TumSequence(Sequence):
         if default is not None:
             log.info("%s: no calibration.yaml, using TUM defaults by folder name", self.path)
             return default
+        from_config = from_overrides(overrides)
+        if from_config is not None:
+            log.info("%s: no calibration.yaml, using the config's dataset.calibration", self.path)
+            return from_config
+        missing = missing_overrides(overrides)
+        hint = (
+            f" (it gives {len(KEYS) - len(missing)} of them; missing: {', '.join(missing)})"
+            if len(missing) < len(KEYS)
+            else ""
+        )
         raise CalibrationError(
             f"{self.path}: no calibration.yaml and the folder name does not say freiburg1/2/3; "
-            "add calibration.yaml (width, height, fx, fy, cx, cy, depth_scale) or pass the "
-            "intrinsics in the config section 'dataset.calibration'"
+            "add calibration.yaml (width, height, fx, fy, cx, cy, depth_scale) or give all seven "
+            f"in the config section 'dataset.calibration'{hint}, e.g. a YAML file for --config: "
+            "'dataset: {calibration: {width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, "
+            "cy: 239.5, depth_scale: 5000}}'"
         )
 
     def _check_first_files(self) -> None:

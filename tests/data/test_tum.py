@@ -66,6 +66,19 @@ def test_missing_calibration_is_a_clear_error(tmp_path):
         open_sequence(root)
 
 
+def test_calibration_from_config_alone(tmp_path):
+    """No calibration.yaml, no freiburg in the name: the config's dataset.calibration, when it
+    gives all seven keys, is the calibration (the error message says to do exactly that)."""
+    root = _write_seq(tmp_path / "unknown_cam", [0.0], [0.0], calib=False)
+    calib = {"width": 64, "height": 48, "fx": 50.0, "fy": 51.0, "cx": 31.5, "cy": 23.5}
+    with pytest.raises(CalibrationError, match=r"gives 6 of them; missing: depth_scale"):
+        open_sequence(root, calibration_overrides=calib)
+    seq = open_sequence(root, calibration_overrides={**calib, "depth_scale": 1000, "fx": 49})
+    c = seq.calibration
+    assert (c.width, c.height, c.fx, c.fy, c.depth_scale) == (64, 48, 49.0, 51.0, 1000.0)
+    assert seq[0].depth_m[0, 0] == pytest.approx(5.0)  # 5000 / 1000
+
+
 def test_tum_defaults_by_folder_name(tmp_path):
     seq = open_sequence(
         _write_seq(tmp_path / "rgbd_dataset_freiburg1_xyz", [0.0], [0.0], calib=False)
