@@ -189,8 +189,16 @@ class BAConfig:
     outlier_chi2: float = 7.815
     max_iterations: int = 5  # Levenberg-Marquardt, before and again after removing outliers
     # the pose graph's depth-registration edges (odometry, loops) stay in the problem, their
-    # information scaled by this factor (0: pure BA, keyframes held by landmarks only)
-    pose_graph_weight: float = 10.0
+    # information scaled by this factor (0: pure BA, keyframes held by landmarks only). Where
+    # tracks are short (a keyframe's landmarks seen by 2-3 keyframes) sparse features alone
+    # drift more than dense ICP odometry; keyframe ATE (mm) pose graph / w=10 / 30 / 100:
+    # tum-fr1-xyz 17.2 / 9.4 / 9.2 / 10.4, demo 2.5 / 4.4 / 3.6 / 2.2, demo-drift
+    # 9.5 / 5.9 / 5.3 / 5.0, 7scenes-1000 49.6 / 32.3 / 34.0 / 36.8
+    pose_graph_weight: float = 100.0
+    # an adjustment with fewer inlier observations than this per keyframe is not used (the
+    # pose graph stands): too few landmarks to beat the depth odometry (tum-fr3-cabinet-kf58,
+    # 46 per keyframe: 57 -> 66 mm; the sequences above: 130-215)
+    min_observations_per_keyframe: int = 100
     # colour not registered to depth (separate cameras, e.g. 7-Scenes): the depth read at a
     # colour keypoint belongs to a neighbouring ray, so the depth term is weakened to this
     # (see slam.backend.bundle_adjustment)
@@ -293,6 +301,7 @@ class SlamConfig:
             (ba.outlier_chi2 > 0, "ba.outlier_chi2", ba.outlier_chi2, "> 0"),
             (ba.max_iterations >= 1, "ba.max_iterations", ba.max_iterations, ">= 1"),
             (ba.pose_graph_weight >= 0, "ba.pose_graph_weight", ba.pose_graph_weight, ">= 0"),
+            (ba.min_observations_per_keyframe >= 0, "ba.min_observations_per_keyframe", ba.min_observations_per_keyframe, ">= 0"),
             (ba.unregistered_depth_sigma_m > 0, "ba.unregistered_depth_sigma_m", ba.unregistered_depth_sigma_m, "> 0"),
         ]
         for ok, key, value, requirement in checks:

@@ -189,7 +189,30 @@ class BundleAdjuster:
 
     def collect(self, result: BAResult, reason: str = "global") -> BAResult:
         """Record a finished adjustment and remove its outlier observations from the
-        tracks (done by :meth:`optimise`; call it for a :meth:`submit` future's result)."""
+        tracks (done by :meth:`optimise`; call it for a :meth:`submit` future's result).
+        Its poses are dropped (reported as skipped; the pose graph stands) when it rests on
+        fewer than ``ba.min_observations_per_keyframe`` inlier observations per keyframe, or
+        did not lower the reprojection error (it should by construction; it would take a
+        degenerate problem)."""
+        why = None
+        per_kf = result.observations / max(result.keyframes, 1)
+        if result.skipped is not None:
+            pass
+        elif per_kf < self.cfg.min_observations_per_keyframe:
+            why = (
+                f"{per_kf:.0f} landmark observations per keyframe (min "
+                f"{self.cfg.min_observations_per_keyframe}): too few to improve on the depth "
+                "odometry; the pose graph stands"
+            )
+        elif not result.reprojection_rmse_px_after < result.reprojection_rmse_px_before:
+            why = (
+                f"the reprojection error did not decrease ({result.reprojection_rmse_px_before:.2f}"
+                f" -> {result.reprojection_rmse_px_after:.2f} px); the pose graph stands"
+            )
+        if why:
+            log.warning("bundle adjustment not used: %s", why)
+            result.skipped = why
+            result.poses = {}
         if result.outliers:
             self.landmarks.detach(result.outlier_kf, result.outlier_feature)
         if result.skipped is None:

@@ -202,6 +202,17 @@ def test_adjuster_builds_tracks_and_adjusts():
     assert res2.outliers < res.outliers
 
 
+def test_adjuster_does_not_use_a_thinly_observed_adjustment():
+    """Too few observations per keyframe to beat the depth odometry: the pose graph stands."""
+    s = make_problem(**{**PROBLEM, "n_keyframes": 8, "max_observations": 40})
+    ba = BundleAdjuster(PURE, downsample=2)
+    for kf in _keyframes(s):
+        ba.add_keyframe(kf)
+    res = ba.optimise(s.poses_init)
+    assert res.skipped and "per keyframe" in res.skipped and not res.poses
+    assert ba.summary()["runs"] == 0
+
+
 def test_ba_config_is_checked():
     assert config_from_dict({}).ba.enabled
     with pytest.raises(ConfigError, match="ba.pixel_sigma_px"):

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from slam.backend.bundle_adjustment import BAProblem
-from slam.backend.landmarks import LandmarkMap, colour_intrinsics, guided_match, hamming
+from slam.backend.landmarks import (
+    LandmarkMap,
+    colour_intrinsics,
+    distinct_features,
+    guided_match,
+    hamming,
+)
 from slam.config import BAConfig
 from slam.data.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
 from slam.frontend.features import OrbExtractor, match_descriptors
@@ -86,6 +92,9 @@ def test_hamming_and_intrinsics():
     assert hamming(a, b).tolist() == [0, 16]
     K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
     assert np.allclose(colour_intrinsics(scale_intrinsics(K, 2), 2), K)
+    # ORB finds one corner at several pyramid levels: the first keypoint of a cluster is kept
+    px = np.array([[10.0, 10.0], [11.0, 10.5], [30.0, 30.0], [10.5, 9.0]])
+    assert distinct_features(px).tolist() == [True, False, True, False]
 
 
 def test_guided_match_finds_true_correspondences(loop_keyframes):
@@ -119,14 +128,15 @@ def test_tracks_are_long_and_correct(loop_keyframes):
     s = lm.stats()
     lengths = lm.track_lengths()
     correct = track_correctness(lm, truth, tol_px=5.0)
-    # measured: 9145 landmarks, 29751 observations, mean track 3.25 keyframes (max 8), 37%
-    # of the tracks span 4 keyframes or more; 99.2% of the observations within 5 px of their
-    # track's true point (100% within 10 px: no gross mismatch)
-    assert s["landmarks"] >= 6000, s
-    assert s["observations"] >= 20000, s
-    assert s["track_length_mean"] >= 3.0, s
-    assert np.mean(lengths >= 4) >= 0.3, np.mean(lengths >= 4)
-    assert correct >= 0.98, correct
+    # measured: 4957 landmarks, 15311 observations (of the 54% of keypoints that are not
+    # near-duplicates), mean track 3.1 keyframes (max 8), 30% of the tracks span 4 keyframes
+    # or more; 98.7% of the observations within 5 px of their track's true point (99.97%
+    # within 10 px: no gross mismatch)
+    assert s["landmarks"] >= 3500, s
+    assert s["observations"] >= 11000, s
+    assert s["track_length_mean"] >= 2.8, s
+    assert np.mean(lengths >= 4) >= 0.25, np.mean(lengths >= 4)
+    assert correct >= 0.975, correct
     assert track_correctness(lm, truth, tol_px=10.0) >= 0.995
     # one observation per (keyframe, landmark)
     kf, _, lm_id = lm.observations()
@@ -146,15 +156,15 @@ def test_loop_merge_shares_landmarks_between_visits(loop_keyframes):
         return len(a & b)
 
     # the drifted odometry (9 deg, 0.13 m at the end) keeps the two visits mostly apart
-    before = shared()  # measured: 14
+    before = shared()  # measured: 15
     assert before < 50, before
     T_match_query = inv_T(truth[first]) @ truth[last]  # as loop verification measures it
     poses = {k.id: k.T_world_cam for k in kfs}
     n = lm.merge_loop(last, first, T_match_query, poses)
-    # measured: 431 feature pairs, 370 landmarks shared by the first and last keyframes
-    assert n >= 250, n
-    assert shared() >= before + 250, shared()
-    assert track_correctness(lm, truth, tol_px=5.0) >= 0.98
+    # measured: 215 feature pairs, 176 landmarks shared by the first and last keyframes
+    assert n >= 150, n
+    assert shared() >= before + 120, shared()
+    assert track_correctness(lm, truth, tol_px=5.0) >= 0.975
     problem = BAProblem.from_landmarks(lm)
     assert problem.n_landmarks == lm.stats()["landmarks"]
 
