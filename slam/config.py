@@ -188,6 +188,9 @@ class BAConfig:
     # the optimisation is an outlier: removed, and the problem optimised again without it
     outlier_chi2: float = 7.815
     max_iterations: int = 5  # Levenberg-Marquardt, before and again after removing outliers
+    # a landmark joins the problem with at most this many observations, evenly spaced along its
+    # track (0: all): long tracks make the reduced camera system dense (time, memory)
+    max_observations_per_landmark: int = 20
     # the pose graph's depth-registration edges (odometry, loops) stay in the problem, their
     # information scaled by this factor (0: pure BA, keyframes held by landmarks only). Where
     # tracks are short (a keyframe's landmarks seen by 2-3 keyframes) sparse features alone
@@ -300,6 +303,7 @@ class SlamConfig:
             (ba.huber_px > 0, "ba.huber_px", ba.huber_px, "> 0"),
             (ba.outlier_chi2 > 0, "ba.outlier_chi2", ba.outlier_chi2, "> 0"),
             (ba.max_iterations >= 1, "ba.max_iterations", ba.max_iterations, ">= 1"),
+            (ba.max_observations_per_landmark == 0 or ba.max_observations_per_landmark >= 2, "ba.max_observations_per_landmark", ba.max_observations_per_landmark, ">= 2 (or 0 for all)"),
             (ba.pose_graph_weight >= 0, "ba.pose_graph_weight", ba.pose_graph_weight, ">= 0"),
             (ba.min_observations_per_keyframe >= 0, "ba.min_observations_per_keyframe", ba.min_observations_per_keyframe, ">= 0"),
             (ba.unregistered_depth_sigma_m > 0, "ba.unregistered_depth_sigma_m", ba.unregistered_depth_sigma_m, "> 0"),

@@ -164,7 +164,9 @@ class BundleAdjuster:
     ) -> tuple[BAProblem | None, dict[int, np.ndarray], list[Edge]]:
         if self.skip_reason:
             return None, {}, []
-        problem = BAProblem.from_landmarks(self.landmarks, kf_ids)
+        problem = BAProblem.from_landmarks(self.landmarks, kf_ids).cap_tracks(
+            self.cfg.max_observations_per_landmark
+        )
         return problem, {k: np.array(T) for k, T in poses.items()}, list(edges)
 
     def _run(

@@ -122,6 +122,19 @@ def test_pose_graph_edges_hold_a_keyframe_without_landmarks():
     assert np.allclose(alone.poses[10], s.poses_init[10])  # not in the problem: unchanged
 
 
+def test_long_tracks_are_capped_evenly():
+    s = make_problem(**{**PROBLEM, "n_keyframes": 12})
+    p = s.problem
+    capped = p.cap_tracks(5)
+    counts = np.bincount(capped.landmark)
+    assert counts.max() == 5 and len(capped) < len(p)
+    longest = np.argmax(np.bincount(p.landmark))
+    kfs = p.kf[p.landmark == longest]
+    kept = capped.kf[capped.landmark_ids[capped.landmark] == p.landmark_ids[longest]]
+    assert kept[0] == kfs.min() and kept[-1] == kfs.max()  # the track's span is kept
+    assert p.cap_tracks(0) is p
+
+
 def test_empty_problem_is_skipped():
     empty = BAProblem(
         np.eye(3), *(np.zeros(0, np.int64) for _ in range(4)), np.zeros((0, 2)), np.zeros(0)
