@@ -158,6 +158,59 @@ class BackendConfig:
 
 
 @dataclass
+class BAConfig:
+    """Bundle adjustment of keyframe poses and ORB landmarks (slam.backend.bundle_adjustment):
+    landmark tracks built as keyframes arrive, merged across accepted loops, and optimised
+    jointly with the keyframe poses (reprojection + depth per observation, Huber-robust)."""
+
+    enabled: bool = True
+    after_loops: bool = True  # a global BA after an accepted loop ...
+    loop_interval_keyframes: int = 10  # ... when this many keyframes came since the last BA
+    at_finish: bool = True  # and once at the end of the run
+    # track building: each new keyframe is matched (guided by the relative pose) against the
+    # previous match_window keyframes and up to match_nearby other keyframes of the same map
+    # whose poses lie within nearby_distance_m / nearby_angle_deg of it
+    match_window: int = 4
+    match_nearby: int = 4
+    nearby_distance_m: float = 0.6
+    nearby_angle_deg: float = 35.0
+    match_radius_px: float = 10.0  # around the pixel the relative pose predicts
+    max_hamming: int = 64  # ORB descriptor distance (of 256 bits) for a match
+    match_ratio: float = 0.85  # best over second-best distance among the candidates in reach
+    depth_tolerance: float = 0.05  # the predicted depth must agree within 2 cm + this fraction
+    # the factor graph: pixel noise of an ORB keypoint, depth noise at 1 m (grows with depth^2,
+    # as a structured-light sensor's disparity noise), Huber threshold in pixels. The depth
+    # noise is well above a Kinect's nominal ~3 mm: keypoints sit on corners, often on depth
+    # edges, and colour and depth are not captured at the same instant (TUM fr1-xyz keyframe
+    # ATE after BA: 12.1 mm at 0.004, 10.2 mm at 0.02, 10.5 mm at 0.06)
+    pixel_sigma_px: float = 1.0
+    depth_sigma_m: float = 0.02
+    huber_px: float = 2.5
+    # an observation whose whitened residual stays above this chi^2 (3 dof, 95%: 7.815) after
+    # the optimisation is an outlier: removed, and the problem optimised again without it
+    outlier_chi2: float = 7.815
+    max_iterations: int = 5  # Levenberg-Marquardt, before and again after removing outliers
+    # a landmark joins the problem with at most this many observations, evenly spaced along its
+    # track (0: all): long tracks make the reduced camera system dense (time, memory)
+    max_observations_per_landmark: int = 20
+    # the pose graph's depth-registration edges (odometry, loops) stay in the problem, their
+    # information scaled by this factor (0: pure BA, keyframes held by landmarks only). Where
+    # tracks are short (a keyframe's landmarks seen by 2-3 keyframes) sparse features alone
+    # drift more than dense ICP odometry; keyframe ATE (mm) pose graph / w=10 / 30 / 100:
+    # tum-fr1-xyz 17.2 / 9.4 / 9.2 / 10.4, demo 2.5 / 4.4 / 3.6 / 2.2, demo-drift
+    # 9.5 / 5.9 / 5.3 / 5.0, 7scenes-1000 49.6 / 32.3 / 34.0 / 36.8
+    pose_graph_weight: float = 100.0
+    # an adjustment with fewer inlier observations than this per keyframe is not used (the
+    # pose graph stands): too few landmarks to beat the depth odometry (tum-fr3-cabinet-kf58,
+    # 46 per keyframe: 57 -> 66 mm; the sequences above: 130-215)
+    min_observations_per_keyframe: int = 100
+    # colour not registered to depth (separate cameras, e.g. 7-Scenes): the depth read at a
+    # colour keypoint belongs to a neighbouring ray, so the depth term is weakened to this
+    # (see slam.backend.bundle_adjustment)
+    unregistered_depth_sigma_m: float = 0.06
+
+
+@dataclass
 class OutputConfig:
     save_mesh: bool = True
     save_tracking_log: bool = True
@@ -170,6 +223,7 @@ class SlamConfig:
     mapping: MappingConfig = field(default_factory=MappingConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
+    ba: BAConfig = field(default_factory=BAConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
 
     def to_dict(self) -> dict[str, Any]:
@@ -178,6 +232,7 @@ class SlamConfig:
     def validate(self) -> SlamConfig:
         """Raise :class:`ConfigError` naming the first key whose value is out of range."""
         d, t, m, lp, b = self.dataset, self.tracking, self.mapping, self.loop, self.backend
+        ba = self.ba
         checks: list[tuple[bool, str, Any, str]] = [
             (d.layout in ("auto", "tum", "7scenes"), "dataset.layout", d.layout, "auto, tum or 7scenes"),
             (d.max_frames is None or d.max_frames >= 1, "dataset.max_frames", d.max_frames, ">= 1 (or null for all)"),
@@ -237,6 +292,24 @@ class SlamConfig:
             (b.loop_kernel_width > 0, "backend.loop_kernel_width", b.loop_kernel_width, "> 0"),
             (b.loop_prune_sigma > 0, "backend.loop_prune_sigma", b.loop_prune_sigma, "> 0"),
             (b.max_iterations >= 1, "backend.max_iterations", b.max_iterations, ">= 1"),
+            (ba.loop_interval_keyframes >= 0, "ba.loop_interval_keyframes", ba.loop_interval_keyframes, ">= 0"),
+            (ba.match_window >= 1, "ba.match_window", ba.match_window, ">= 1"),
+            (ba.match_nearby >= 0, "ba.match_nearby", ba.match_nearby, ">= 0"),
+            (ba.nearby_distance_m >= 0, "ba.nearby_distance_m", ba.nearby_distance_m, ">= 0"),
+            (0 <= ba.nearby_angle_deg <= 180, "ba.nearby_angle_deg", ba.nearby_angle_deg, "in [0, 180]"),
+            (ba.match_radius_px > 0, "ba.match_radius_px", ba.match_radius_px, "> 0"),
+            (0 < ba.max_hamming <= 256, "ba.max_hamming", ba.max_hamming, "in (0, 256]"),
+            (0 < ba.match_ratio <= 1, "ba.match_ratio", ba.match_ratio, "in (0, 1]"),
+            (ba.depth_tolerance >= 0, "ba.depth_tolerance", ba.depth_tolerance, ">= 0"),
+            (ba.pixel_sigma_px > 0, "ba.pixel_sigma_px", ba.pixel_sigma_px, "> 0"),
+            (ba.depth_sigma_m > 0, "ba.depth_sigma_m", ba.depth_sigma_m, "> 0"),
+            (ba.huber_px > 0, "ba.huber_px", ba.huber_px, "> 0"),
+            (ba.outlier_chi2 > 0, "ba.outlier_chi2", ba.outlier_chi2, "> 0"),
+            (ba.max_iterations >= 1, "ba.max_iterations", ba.max_iterations, ">= 1"),
+            (ba.max_observations_per_landmark == 0 or ba.max_observations_per_landmark >= 2, "ba.max_observations_per_landmark", ba.max_observations_per_landmark, ">= 2 (or 0 for all)"),
+            (ba.pose_graph_weight >= 0, "ba.pose_graph_weight", ba.pose_graph_weight, ">= 0"),
+            (ba.min_observations_per_keyframe >= 0, "ba.min_observations_per_keyframe", ba.min_observations_per_keyframe, ">= 0"),
+            (ba.unregistered_depth_sigma_m > 0, "ba.unregistered_depth_sigma_m", ba.unregistered_depth_sigma_m, "> 0"),
         ]
         for ok, key, value, requirement in checks:
             if not ok:

@@ -96,6 +96,14 @@ class Sequence(ABC):
     def has_color(self) -> bool:
         return True
 
+    @property
+    def color_registered(self) -> bool:
+        """Whether colour pixel (u, v) and depth pixel (u, v) see the same ray (depth registered
+        to colour, as TUM RGB-D's). False for two unregistered cameras (7-Scenes): features
+        lifted by depth are then only approximately placed (bundle adjustment weakens its depth
+        term)."""
+        return True
+
     @abstractmethod
     def __len__(self) -> int: ...
 

@@ -74,6 +74,11 @@ class SevenScenesSequence(Sequence):
     def has_color(self) -> bool:
         return self._color is not None
 
+    @property
+    def color_registered(self) -> bool:
+        """7-Scenes' colour and depth come from two uncalibrated cameras: not registered."""
+        return False
+
     def __len__(self) -> int:
         return len(self._depth)
 

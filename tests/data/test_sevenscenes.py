@@ -24,6 +24,7 @@ def test_seven_scenes_single_folder(tmp_path):
     assert abs(f.timestamp - 1 / 30) < 1e-9
     np.testing.assert_allclose(seq.ground_truth.positions[:, 0], [0, 1, 2])
     assert seq.calibration.fx == 585.0
+    assert not seq.color_registered  # two cameras: bundle adjustment weakens its depth term
 
 
 def test_seven_scenes_split_folders_real():

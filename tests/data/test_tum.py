@@ -115,3 +115,4 @@ def test_depth_only_sequence(tmp_path):
     (root / "rgb.txt").unlink()
     seq = open_sequence(root)
     assert not seq.has_color and seq[0].color is None
+    assert seq.color_registered  # TUM: depth registered to colour (when there is colour)
