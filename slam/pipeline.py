@@ -89,7 +89,12 @@ def run(
     indices = frame_indices(sequence, cfg)
     if not indices:
         raise SlamError(f"{sequence.path}: no frames to process (check dataset.max_frames/stride)")
-    system = Slam(cfg, has_color=sequence.has_color, work_dir=None if run_dir is None else str(run_dir))
+    system = Slam(
+        cfg,
+        has_color=sequence.has_color,
+        work_dir=None if run_dir is None else str(run_dir),
+        color_registered=sequence.color_registered,
+    )
     start = 0
     if resume:
         assert run_dir is not None
@@ -131,7 +136,11 @@ def run(
     if resume:
         m["resumed_at_frame"] = start
     m["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
-    m.update(evaluate_against_ground_truth(sequence, result.trajectory, result.odometry))
+    m.update(
+        evaluate_against_ground_truth(
+            sequence, result.trajectory, result.odometry, result.pose_graph
+        )
+    )
     log.info("%s: %s", sequence.name, summary_line(m))
     return result
 
@@ -151,9 +160,14 @@ def summary_line(m: dict[str, Any]) -> str:
 
 
 def evaluate_against_ground_truth(
-    sequence: Sequence, traj: Trajectory, odometry: Trajectory
+    sequence: Sequence,
+    traj: Trajectory,
+    odometry: Trajectory,
+    pose_graph: Trajectory | None = None,
 ) -> dict[str, Any]:
     """The ``metrics.json`` accuracy keys: ``ate_rmse_m``, ``ate_rmse_odometry_m``,
+    ``ate_rmse_pose_graph_m`` (the pose graph alone, before bundle adjustment, evaluated as the
+    final trajectory is),
     ``rpe_trans_rmse_m``, ``rpe_rot_rmse_deg``, ``matched_poses``, ``drift_percent`` (``{}``
     without ground truth; ``evaluation_error`` when it fails).
 
@@ -172,12 +186,18 @@ def evaluate_against_ground_truth(
         final = slam_eval.evaluate(gt, as_written(traj))
         same = len(traj) == len(odometry) and np.array_equal(traj.poses, odometry.poses)
         odo_rmse = final["ate_rmse_m"] if same else slam_eval.ate(gt, as_written(odometry)).rmse
+        pg_rmse = (
+            final["ate_rmse_m"]
+            if pose_graph is None or np.array_equal(pose_graph.poses, traj.poses)
+            else slam_eval.ate(gt, as_written(pose_graph)).rmse
+        )
     except SlamError as exc:
         log.warning("evaluation against ground truth failed: %s", exc)
         return {"evaluation_error": str(exc)}
     out = {
         "ate_rmse_m": final["ate_rmse_m"],
         "ate_rmse_odometry_m": odo_rmse,
+        "ate_rmse_pose_graph_m": pg_rmse,
         "rpe_trans_rmse_m": final["rpe_trans_rmse_m"],
         "rpe_rot_rmse_deg": final["rpe_rot_rmse_deg"],
         "matched_poses": final["matched_poses"],

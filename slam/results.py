@@ -23,7 +23,8 @@ class RunResult:
     """What a run produces. ``trajectory`` is the final estimate, ``odometry`` the frontend-only
     one (identical until loop closure corrects poses); both hold the frames that have a pose in
     the main map component (lost frames have none). ``segments``: trajectories of map segments
-    that were never joined to the main one (their frame is unrelated to it), by segment id."""
+    that were never joined to the main one (their frame is unrelated to it), by segment id.
+    ``pose_graph``: the trajectory before bundle adjustment (the pose graph's keyframes)."""
 
     trajectory: Trajectory
     odometry: Trajectory
@@ -34,6 +35,7 @@ class RunResult:
     model: SubmapMap | None = None  # the submaps (odometry frame), for re-meshing and inspection
     loop_closer: LoopCloser | None = None  # keyframes, pose graph and loop records
     segments: dict[int, Trajectory] = field(default_factory=dict)
+    pose_graph: Trajectory | None = None  # frames following the pose graph alone (before BA)
 
     @property
     def poses(self) -> np.ndarray:

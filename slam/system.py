@@ -19,6 +19,7 @@ component of the pose graph), joined to the old map at the first verified revisi
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from collections import Counter, deque
@@ -27,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from slam.backend.adjuster import BundleAdjuster
 from slam.backend.loop_closure import KeyframeLink, LoopCloser, elastic_correction
 from slam.config import SlamConfig
 from slam.data.base import Frame
@@ -93,6 +95,7 @@ class Slam:
         config: SlamConfig | None = None,
         has_color: bool = True,
         work_dir: str | None = None,
+        color_registered: bool = True,
     ) -> None:
         self.cfg = cfg = (config or SlamConfig()).validate()
         self.has_color = has_color
@@ -100,6 +103,13 @@ class Slam:
         spill = None if work_dir is None else f"{work_dir}/submaps"
         self.model = SubmapMap(cfg.mapping, with_color=has_color, spill_dir=spill)
         self.closer = LoopCloser(cfg.loop, cfg.backend, cfg.tracking.depth_max_m)
+        self.ba = BundleAdjuster(
+            cfg.ba,
+            cfg.tracking.downsample,
+            has_color,
+            color_registered,
+            cfg.backend.loop_kernel_width,
+        )
         self.rows = _Rows()
         self.kf_rows: list[int] = []  # row of each keyframe in ``rows``
         self.statuses: list[TrackingStatus] = []  # every frame stepped
@@ -203,6 +213,7 @@ class Slam:
             if link is None:
                 self.model.on_keyframe(kf.id, kf.T_world_cam)
             loops = self.closer.add_keyframe(kf, link)
+            self._bundle_adjust_after(kf, loops, link)
         t_loop = time.perf_counter()
         if T is not None:
             self.model.integrate(frame.depth_m, frame.color, frame.K, T)
@@ -217,6 +228,26 @@ class Slam:
         status.segment = self.segment
         self.statuses.append(status)
         return FrameResult(frame.index, frame.timestamp, status, T, loops)
+
+    def _bundle_adjust_after(
+        self, kf: Keyframe, loops: list[dict[str, Any]], link: KeyframeLink | None
+    ) -> None:
+        """Extend the landmark tracks with the new keyframe, merge the tracks of its accepted
+        loops (and of the keyframe it was relocalised against), and (``ba.after_loops``, every
+        ``ba.loop_interval_keyframes``) adjust globally from the pose graph's solution."""
+        closer = self.closer
+        nodes = closer.graph.nodes
+        self.ba.add_keyframe(
+            kf, nodes, lambda a, b: closer.segment_root(a.segment) == closer.segment_root(b.segment)
+        )
+        accepted = [r for r in loops if r["accepted"]]
+        for r in accepted:
+            self.ba.merge_loop(r["query_kf"], r["match_kf"], np.asarray(r["T_match_query"]), nodes)
+        if link is not None and link.kind == "relocalisation" and link.T_other_kf is not None:
+            self.ba.merge_loop(kf.id, link.other, link.T_other_kf, nodes)
+        if accepted and self.ba.due_after_loop(kf.id):
+            res = self.ba.optimise(nodes, closer.graph.edges, reason=f"loop at keyframe {kf.id}")
+            nodes.update(res.poses)  # later loop checks and matching start from BA's poses
 
     def _lose(self, status: TrackingStatus) -> None:
         status.path = "lost"
@@ -342,16 +373,28 @@ class Slam:
         runs = np.array(self.rows.run)
         kfs = self.closer.keyframes
         corrected = self.closer.optimisations > 0 or len(self.components()) > 1
-        if corrected:
-            final_all = elastic_correction(
+        pose_graph_poses = {kf.id: self.closer.T_world_kf(kf.id) for kf in kfs}
+        kf_poses = dict(pose_graph_poses)
+        if self.cfg.ba.at_finish:
+            t_ba = time.perf_counter()
+            res = self.ba.optimise(self.closer.graph.nodes, self.closer.graph.edges, reason="finish")
+            self.stage_ms["bundle_adjustment"] = (time.perf_counter() - t_ba) * 1e3
+            kf_poses.update(res.poses)
+
+        def follow(poses: dict[int, np.ndarray]) -> np.ndarray:
+            """Every frame follows its keyframes' poses (elastic correction)."""
+            return elastic_correction(
                 odo_all,
                 self.kf_rows,
                 [kf.T_world_cam for kf in kfs],
-                [self.closer.T_world_kf(kf.id) for kf in kfs],
+                [poses[kf.id] for kf in kfs],
                 runs,
             )
-        else:
-            final_all = odo_all.copy()
+
+        pose_graph_all = follow(pose_graph_poses) if corrected else odo_all.copy()
+        adjusted = any(not np.array_equal(kf_poses[k], pose_graph_poses[k]) for k in kf_poses)
+        final_all = follow(kf_poses) if adjusted else pose_graph_all
+        corrected = corrected or adjusted
         # the trajectory is the map component with the most frames; others are reported
         seg_root = np.array([self.closer.segment_root(s) for s in self.rows.segment])
         roots, counts = np.unique(seg_root, return_counts=True)
@@ -360,6 +403,7 @@ class Slam:
         stamps = np.array(self.rows.timestamp)
         odometry = Trajectory(stamps[keep], odo_all[keep])
         traj = Trajectory(stamps[keep].copy(), final_all[keep])
+        pose_graph = Trajectory(stamps[keep].copy(), pose_graph_all[keep])
         others = {
             int(r): Trajectory(stamps[seg_root == r], final_all[seg_root == r])
             for r in roots
@@ -378,7 +422,7 @@ class Slam:
         stage_ms = dict(self.stage_ms)
         if self.cfg.output.save_mesh:
             anchors = (
-                {sm.id: self.closer.T_world_kf(sm.anchor_kf) for sm in self.model.submaps}
+                {sm.id: kf_poses[sm.anchor_kf] for sm in self.model.submaps}
                 if corrected
                 else None
             )
@@ -403,6 +447,7 @@ class Slam:
             self.model,
             self.closer,
             others,
+            pose_graph,
         )
 
     def _metrics(
@@ -468,6 +513,7 @@ class Slam:
             "loop_detection_ms": round(closer.ms["loop_detection"], 1),
             "optimisation_ms": round(closer.ms["optimisation"], 1),
             "optimisations": closer.optimisations,
+            "ba": self.ba.summary(),
             "icp_fitness_mean": round(float(np.mean([s.icp_fitness for s in tracked] or [0])), 4),
             "icp_rmse_mean_m": round(float(np.mean([s.icp_rmse_m for s in tracked] or [0])), 6),
             "mesh_vertices": len(mesh.vertices) if mesh is not None else 0,
@@ -496,6 +542,7 @@ class Slam:
                 "recent_overlaps": list(st.recent_overlaps),
             },
             "closer": self.closer.state_dict(),
+            "ba": copy.deepcopy(self.ba.state_dict()),
             "model": self.model.state_dict(),
             "rows": {k: list(v) for k, v in self.rows.__dict__.items()},
             "kf_rows": list(self.kf_rows),
@@ -540,6 +587,7 @@ class Slam:
         self.tracker._rng.bit_generator.state = t["rng"]
         st.recent_overlaps = list(t["recent_overlaps"])
         self.closer.load_state_dict(state["closer"], by_id)
+        self.ba.load_state_dict(state["ba"], by_id)
         self.model.load_state_dict(state["model"])
         self.rows = _Rows(**{k: list(v) for k, v in state["rows"].items()})
         self.kf_rows = list(state["kf_rows"])

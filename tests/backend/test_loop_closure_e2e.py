@@ -110,7 +110,8 @@ def test_no_false_loop_without_a_revisit(name, request):
     _, _, res = request.getfixturevalue(name)
     assert res.metrics["loops_accepted"] == 0
     assert res.metrics["loops_rejected"] > 0  # candidates were retrieved and verified
-    np.testing.assert_array_equal(res.trajectory.poses, res.odometry.poses)
+    # no pose-graph correction (the final trajectory may still differ: bundle adjustment)
+    np.testing.assert_array_equal(res.pose_graph.poses, res.odometry.poses)
 
 
 def test_alias_is_rejected_by_the_odometry_consistency_check(alias_sweep):
