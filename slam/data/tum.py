@@ -9,8 +9,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from slam.data.base import Calibration, Frame, Sequence
-from slam.data.calibration import apply_overrides, read_calibration_yaml, tum_default_for
-from slam.data.images import read_color, read_depth
+from slam.data.calibration import (
+    apply_overrides,
+    read_calibration_yaml,
+    tum_default_for,
+    with_tum_distortion,
+)
+from slam.data.images import Undistorter, read_color, read_depth
 from slam.errors import CalibrationError, DatasetError, TrajectoryError
 from slam.trajectory import Trajectory, read_tum
 
@@ -144,7 +149,13 @@ class TumSequence(Sequence):
             self._stamps = depth_stamps
             self._rgb = None
             self._depth = depth_names
-        self.calibration = apply_overrides(self._find_calibration(), calibration_overrides)
+        self.calibration = apply_overrides(
+            with_tum_distortion(self._find_calibration()), calibration_overrides
+        )
+        c = self.calibration
+        self._undistort = (
+            Undistorter(c.K, c.distortion, c.width, c.height) if c.has_distortion else None
+        )
         self._gt: Trajectory | None = None
         self._gt_loaded = False
         self._check_first_files()
@@ -190,6 +201,9 @@ class TumSequence(Sequence):
             color = read_color(self.path / self._rgb[index], index)
             if color.shape[:2] != depth.shape:
                 color = _resize_to(color, depth.shape)
+        if self._undistort is not None and depth.shape == self._undistort.map_x.shape:
+            depth = self._undistort.depth(depth)
+            color = None if color is None else self._undistort.color(color)
         return Frame(index, float(self._stamps[index]), color, depth, self.calibration.K)
 
     @property
