@@ -90,7 +90,9 @@ def run(
     if not indices:
         raise SlamError(f"{sequence.path}: no frames to process (check dataset.max_frames/stride)")
     use_color = sequence.has_color
-    tracker = Tracker(cfg.tracking, use_color=use_color)
+    registered = cfg.dataset.color_registered
+    registered = sequence.color_registered if registered is None else registered
+    tracker = Tracker(cfg.tracking, use_color=use_color, color_registered=registered)
     model = SubmapMap(cfg.mapping, with_color=use_color)
     closer = LoopCloser(cfg.loop, cfg.backend, cfg.tracking.depth_max_m)
     kf_rows: list[int] = []  # row of each keyframe in ``poses``

@@ -119,6 +119,12 @@ class Sequence(ABC):
     def has_color(self) -> bool:
         return True
 
+    @property
+    def color_registered(self) -> bool:
+        """Whether colour pixel (u, v) sees the same ray as depth pixel (u, v) (needed by
+        anything that uses colour and depth of one pixel together, e.g. photometric tracking)."""
+        return self.has_color
+
     @abstractmethod
     def __len__(self) -> int: ...
 

@@ -78,6 +78,10 @@ class SevenScenesSequence(Sequence):
     def has_color(self) -> bool:
         return self._color is not None
 
+    @property
+    def color_registered(self) -> bool:
+        return False  # 7-Scenes' colour and depth come from two unregistered cameras
+
     def __len__(self) -> int:
         return len(self._depth)
 

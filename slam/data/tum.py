@@ -185,6 +185,14 @@ class TumSequence(Sequence):
     def has_color(self) -> bool:
         return self._rgb is not None
 
+    @property
+    def color_registered(self) -> bool:
+        """TUM RGB-D's depth is registered to colour; a 7-Scenes recording converted to this
+        layout (its ``pose/frame-XXXXXX.pose.txt`` files kept) is not."""
+        pose = self.path / "pose"
+        seven_scenes = pose.is_dir() and next(pose.glob("frame-*.pose.txt"), None) is not None
+        return self.has_color and not seven_scenes
+
     def __len__(self) -> int:
         return len(self._stamps)
 
