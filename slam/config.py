@@ -27,6 +27,8 @@ class DatasetConfig:
     calibration: dict[str, float | None] = field(default_factory=dict)
     max_frames: int | None = None  # read at most this many frames
     stride: int = 1  # use every n-th frame
+    # colour pixel-aligned with depth? null: as the sequence says (TUM: yes, 7-Scenes: no)
+    color_registered: bool | None = None
 
 
 @dataclass
@@ -68,6 +70,12 @@ class TrackingConfig:
     hypotheses: bool = True  # large motion, poor overlap: also try identity/velocity/RANSAC guesses
     hypothesis_overlap: float = 0.75  # ... unless the first estimate already overlaps this well
     relocalisation_keyframes: int = 5  # RANSAC tries this many recent keyframes when needed
+    # colour in tracking (only where colour is registered to depth, see dataset.color_registered):
+    # weight of the photometric term of a joint photometric + geometric frame-to-model alignment
+    # against the model's ray-cast colour (slam.frontend.photometric); 0 = depth only. Off: at
+    # 1.0 it measured no better on tum-fr1-xyz and worse on the demo and the cabinet, ~2x slower
+    photometric_weight: float = 0.0
+    photometric_frame_to_frame: bool = False  # ... the frame-to-frame alignment joint too
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
     # robustness: a frame with less usable depth than this fraction of its pixels is lost

@@ -89,11 +89,13 @@ def run(
     indices = frame_indices(sequence, cfg)
     if not indices:
         raise SlamError(f"{sequence.path}: no frames to process (check dataset.max_frames/stride)")
+    registered = cfg.dataset.color_registered
+    registered = sequence.color_registered if registered is None else registered
     system = Slam(
         cfg,
         has_color=sequence.has_color,
         work_dir=None if run_dir is None else str(run_dir),
-        color_registered=sequence.color_registered,
+        color_registered=registered,
     )
     start = 0
     if resume:

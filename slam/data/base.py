@@ -15,7 +15,11 @@ from slam.trajectory import Trajectory
 
 @dataclass(frozen=True)
 class Calibration:
-    """Pinhole intrinsics (pixels) and the depth scale (stored depth value / depth_scale = metres)."""
+    """Pinhole intrinsics (pixels) and the depth scale (stored depth value / depth_scale = metres).
+
+    ``k1 k2 p1 p2 k3``: lens distortion of the images (OpenCV's radial-tangential model), all 0
+    when the images are already undistorted; loaders undistort frames that have it, so every
+    frame the pipeline sees is pinhole with intrinsics ``K``."""
 
     width: int
     height: int
@@ -24,6 +28,11 @@ class Calibration:
     cx: float
     cy: float
     depth_scale: float = 5000.0
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
@@ -38,6 +47,15 @@ class Calibration:
         """3x3 intrinsic matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    @property
+    def distortion(self) -> np.ndarray:
+        """OpenCV distortion coefficients ``(k1, k2, p1, p2, k3)``."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.distortion != 0.0))
+
     def to_dict(self) -> dict:
         return {
             "width": self.width,
@@ -47,6 +65,11 @@ class Calibration:
             "cx": self.cx,
             "cy": self.cy,
             "depth_scale": self.depth_scale,
+            "k1": self.k1,
+            "k2": self.k2,
+            "p1": self.p1,
+            "p2": self.p2,
+            "k3": self.k3,
         }
 
 
@@ -102,7 +125,7 @@ class Sequence(ABC):
         to colour, as TUM RGB-D's). False for two unregistered cameras (7-Scenes): features
         lifted by depth are then only approximately placed (bundle adjustment weakens its depth
         term)."""
-        return True
+        return self.has_color
 
     @abstractmethod
     def __len__(self) -> int: ...

@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from slam.data.base import Calibration
@@ -14,10 +15,23 @@ from slam.errors import CalibrationError
 
 log = logging.getLogger(__name__)
 
-#: TUM RGB-D default intrinsics (ROS defaults published with the benchmark), depth scale 5000.
+#: TUM RGB-D's published distortion (k1, k2, p1, p2, k3) of the freiburg1 and freiburg2 colour
+#: cameras, to which their depth images are registered; calibrated together with the intrinsics
+#: below. Their recordings are distributed as recorded (not undistorted); freiburg3's are
+#: undistorted already.
+TUM_DISTORTION = {
+    "freiburg1": (0.2624, -0.9531, -0.0054, 0.0026, 1.1633),
+    "freiburg2": (0.2312, -0.7849, -0.0033, -0.0001, 0.9172),
+}
+
+#: TUM RGB-D calibrated intrinsics (with their distortion), depth scale 5000.
 TUM_DEFAULTS = {
-    "freiburg1": Calibration(640, 480, 517.3, 516.5, 318.6, 255.3, 5000.0),
-    "freiburg2": Calibration(640, 480, 520.9, 521.0, 325.1, 249.7, 5000.0),
+    "freiburg1": Calibration(
+        640, 480, 517.3, 516.5, 318.6, 255.3, 5000.0, *TUM_DISTORTION["freiburg1"]
+    ),
+    "freiburg2": Calibration(
+        640, 480, 520.9, 521.0, 325.1, 249.7, 5000.0, *TUM_DISTORTION["freiburg2"]
+    ),
     "freiburg3": Calibration(640, 480, 535.4, 539.2, 320.1, 247.6, 5000.0),
 }
 
@@ -25,6 +39,7 @@ TUM_DEFAULTS = {
 SEVEN_SCENES_DEFAULT = Calibration(640, 480, 585.0, 585.0, 320.0, 240.0, 1000.0)
 
 KEYS = ("width", "height", "fx", "fy", "cx", "cy", "depth_scale")
+DISTORTION_KEYS = ("k1", "k2", "p1", "p2", "k3")  # optional in calibration.yaml (default 0)
 
 
 def read_calibration_yaml(path: Path) -> Calibration:
@@ -47,6 +62,7 @@ def read_calibration_yaml(path: Path) -> Calibration:
             cx=float(data["cx"]),
             cy=float(data["cy"]),
             depth_scale=float(data["depth_scale"]),
+            **{k: float(data[k]) for k in DISTORTION_KEYS if data.get(k) is not None},
         )
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"{path}: non-numeric calibration value: {exc}") from exc
@@ -61,6 +77,24 @@ def tum_default_for(folder: Path) -> Calibration | None:
     return TUM_DEFAULTS[f"freiburg{m.group(1)}"]
 
 
+def with_tum_distortion(calib: Calibration) -> Calibration:
+    """``calib`` with TUM's published distortion when it states none and its intrinsics are
+    TUM's calibrated ones of the freiburg1 or freiburg2 camera (those intrinsics were estimated
+    together with that distortion; using them without it leaves the images' ~2% radial
+    distortion in, which the rigid alignment of tracking partly explains by translation)."""
+    if calib.has_distortion:
+        return calib
+    for name, dist in TUM_DISTORTION.items():
+        d = TUM_DEFAULTS[name]
+        same = (calib.width, calib.height) == (d.width, d.height) and np.allclose(
+            [calib.fx, calib.fy, calib.cx, calib.cy], [d.fx, d.fy, d.cx, d.cy], atol=0.05
+        )
+        if same:
+            log.info("intrinsics of TUM's %s camera: undistorting with its published model", name)
+            return Calibration(**{**calib.to_dict(), **dict(zip(DISTORTION_KEYS, dist))})
+    return calib
+
+
 def apply_overrides(calib: Calibration, overrides: dict[str, Any] | None) -> Calibration:
     """Replace calibration fields by non-null override values (from config or CLI)."""
     if not overrides:
@@ -70,7 +104,9 @@ def apply_overrides(calib: Calibration, overrides: dict[str, Any] | None) -> Cal
         if value is None:
             continue
         if key not in values:
-            raise CalibrationError(f"unknown calibration override {key!r}; expected one of {KEYS}")
+            raise CalibrationError(
+                f"unknown calibration override {key!r}; expected one of {KEYS + DISTORTION_KEYS}"
+            )
         values[key] = value
     return Calibration(**values)
 

@@ -51,3 +51,25 @@ def read_depth(
     depth = raw.astype(np.float32) / np.float32(depth_scale)
     depth[~np.isfinite(depth)] = 0.0
     return depth
+
+
+class Undistorter:
+    """Resamples frames of a camera with lens distortion onto the pinhole image of the same
+    intrinsics ``K`` (OpenCV's radial-tangential model): depth by nearest neighbour (no depth is
+    invented between surfaces), colour bilinearly. The maps are built once."""
+
+    def __init__(self, K: np.ndarray, distortion: np.ndarray, width: int, height: int) -> None:
+        self.map_x, self.map_y = cv2.initUndistortRectifyMap(
+            np.asarray(K, np.float64),
+            np.asarray(distortion, np.float64),
+            None,
+            np.asarray(K, np.float64),
+            (int(width), int(height)),
+            cv2.CV_32FC1,
+        )
+
+    def depth(self, depth_m: np.ndarray) -> np.ndarray:
+        return cv2.remap(depth_m, self.map_x, self.map_y, cv2.INTER_NEAREST)
+
+    def color(self, color: np.ndarray) -> np.ndarray:
+        return cv2.remap(color, self.map_x, self.map_y, cv2.INTER_LINEAR)

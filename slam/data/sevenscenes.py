@@ -14,7 +14,7 @@ import numpy as np
 
 from slam.data.base import Frame, Sequence
 from slam.data.calibration import SEVEN_SCENES_DEFAULT, apply_overrides, read_calibration_yaml
-from slam.data.images import read_color, read_depth
+from slam.data.images import Undistorter, read_color, read_depth
 from slam.errors import DatasetError
 from slam.trajectory import Trajectory
 
@@ -57,6 +57,10 @@ class SevenScenesSequence(Sequence):
         calib_yaml = self.path / "calibration.yaml"
         calib = read_calibration_yaml(calib_yaml) if calib_yaml.is_file() else SEVEN_SCENES_DEFAULT
         self.calibration = apply_overrides(calib, calibration_overrides)
+        c = self.calibration
+        self._undistort = (
+            Undistorter(c.K, c.distortion, c.width, c.height) if c.has_distortion else None
+        )
         self._gt: Trajectory | None = None
         self._gt_loaded = False
 
@@ -94,6 +98,9 @@ class SevenScenesSequence(Sequence):
             import cv2
 
             color = cv2.resize(color, (depth.shape[1], depth.shape[0]))
+        if self._undistort is not None and depth.shape == self._undistort.map_x.shape:
+            depth = self._undistort.depth(depth)
+            color = None if color is None else self._undistort.color(color)
         return Frame(index, self.timestamp(index), color, depth, self.calibration.K)
 
     @property

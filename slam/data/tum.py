@@ -16,8 +16,9 @@ from slam.data.calibration import (
     missing_overrides,
     read_calibration_yaml,
     tum_default_for,
+    with_tum_distortion,
 )
-from slam.data.images import read_color, read_depth
+from slam.data.images import Undistorter, read_color, read_depth
 from slam.errors import CalibrationError, DatasetError, TrajectoryError
 from slam.trajectory import Trajectory, read_tum
 
@@ -168,7 +169,12 @@ class TumSequence(Sequence):
             self._rgb = None
             self._depth = depth_names
         self.calibration = apply_overrides(
-            self._find_calibration(calibration_overrides), calibration_overrides
+            with_tum_distortion(self._find_calibration(calibration_overrides)),
+            calibration_overrides,
+        )
+        c = self.calibration
+        self._undistort = (
+            Undistorter(c.K, c.distortion, c.width, c.height) if c.has_distortion else None
         )
         self._gt: Trajectory | None = None
         self._gt_loaded = False
@@ -211,6 +217,14 @@ class TumSequence(Sequence):
     def has_color(self) -> bool:
         return self._rgb is not None
 
+    @property
+    def color_registered(self) -> bool:
+        """TUM RGB-D's depth is registered to colour; a 7-Scenes recording converted to this
+        layout (its ``pose/frame-XXXXXX.pose.txt`` files kept) is not."""
+        pose = self.path / "pose"
+        seven_scenes = pose.is_dir() and next(pose.glob("frame-*.pose.txt"), None) is not None
+        return self.has_color and not seven_scenes
+
     def __len__(self) -> int:
         return len(self._stamps)
 
@@ -232,6 +246,9 @@ class TumSequence(Sequence):
             color = read_color(self.path / self._rgb[index], index)
             if color.shape[:2] != depth.shape:
                 color = _resize_to(color, depth.shape)
+        if self._undistort is not None and depth.shape == self._undistort.map_x.shape:
+            depth = self._undistort.depth(depth)
+            color = None if color is None else self._undistort.color(color)
         return Frame(index, float(self._stamps[index]), color, depth, self.calibration.K)
 
     @property

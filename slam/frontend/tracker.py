@@ -14,6 +14,7 @@ from slam.data.base import Frame
 from slam.errors import ConfigError
 from slam.frontend.features import FeatureSet, OrbExtractor, match_descriptors
 from slam.frontend.icp import IcpResult, projective_icp, projective_overlap
+from slam.frontend.photometric import RgbdImage, grey, joint_align
 from slam.frontend.pointcloud import (
     bilateral_depth,
     depth_pyramid,
@@ -111,6 +112,7 @@ class TrackerState:
     prev_features: Keyframe | None = None  # the previous frame's features, when it computed them
     prev_depth: np.ndarray | None = None  # the previous frame's depth at tracking resolution
     prev_pyramid: list[np.ndarray] | None = None  # ... and its ICP pyramid (not saved)
+    prev_rgbd: RgbdImage | None = None  # ... and its joint-alignment pyramids (not saved)
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
     recent_overlaps: list[float] = field(default_factory=list)  # of the last tracked frames
@@ -119,11 +121,15 @@ class TrackerState:
 class Tracker:
     """Estimates ``T_world_cam`` of each new frame against the TSDF model."""
 
-    def __init__(self, cfg: TrackingConfig, use_color: bool = True) -> None:
+    def __init__(
+        self, cfg: TrackingConfig, use_color: bool = True, color_registered: bool = True
+    ) -> None:
         if cfg.downsample not in (1, 2, 4):
             raise ConfigError(f"tracking.downsample must be 1, 2 or 4, got {cfg.downsample}")
         self.cfg = cfg
         self.use_color = use_color
+        # the photometric term needs colour pixel-aligned with depth
+        self.photometric = use_color and color_registered and cfg.photometric_weight > 0
         self.orb = OrbExtractor(cfg.ransac.n_features, cfg.depth_min_m, cfg.depth_max_m)
         self.state = TrackerState()
         self._rng = np.random.default_rng(cfg.ransac.seed)
@@ -202,6 +208,7 @@ class Tracker:
         st.velocity = np.eye(4)
         st.prev_depth = depth
         st.prev_pyramid = None
+        st.prev_rgbd = None
         st.recent_overlaps = []
         st.prev_features = (
             Keyframe(frame.index, frame.timestamp, T.copy(), feats)
@@ -218,6 +225,7 @@ class Tracker:
         st = self.state
         st.prev_depth = None
         st.prev_pyramid = None
+        st.prev_rgbd = None
         st.prev_features = None
 
     def track(
@@ -258,6 +266,22 @@ class Tracker:
 
         levels = len(cfg.iterations)
         depth_pyr = depth_pyramid(depth, levels)  # built once: every ICP of this frame uses it
+        rgbd: RgbdImage | None = None  # the frame for joint photometric + geometric alignment
+        if self.photometric and frame.color is not None:
+            rgbd = RgbdImage(depth_pyr, grey(frame.color, factor), K_track, levels)
+
+        def joint_against(target: RgbdImage, init: np.ndarray) -> IcpResult:
+            assert rgbd is not None
+            return joint_align(
+                rgbd,
+                target,
+                init,
+                cfg.iterations,
+                cfg.max_correspondence_m,
+                cfg.huber_delta_m,
+                cfg.coarse_correspondence_factor,
+                cfg.photometric_weight,
+            )
 
         def icp_against(target_depth: np.ndarray | list[np.ndarray], init: np.ndarray) -> IcpResult:
             return projective_icp(
@@ -280,9 +304,13 @@ class Tracker:
             correction larger than ``max_model_correction`` falls back to a ``trusted`` guess
             (one measured by frame-to-frame ICP or RANSAC, not merely predicted)."""
             render = model.raycast(
-                K_track, w, h, T_world_guess, False, False, frustum_depth_m=depth
+                K_track, w, h, T_world_guess, False, rgbd is not None, frustum_depth_m=depth
             )
-            icp = icp_against(render.depth_m, np.eye(4))
+            if rgbd is not None and render.color is not None:
+                target = RgbdImage(render.depth_m, grey(render.color), K_track, levels)
+                icp = joint_against(target, np.eye(4))
+            else:
+                icp = icp_against(render.depth_m, np.eye(4))
             step = icp.T_target_source
             if trusted and (
                 translation_norm(step) > cfg.max_model_correction_m
@@ -321,7 +349,10 @@ class Tracker:
             ray-cast)."""
             if cfg.frame_to_frame and st.prev_depth is not None:
                 prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
-                f2f = icp_against(prev, T_prev_cur)
+                if rgbd is not None and cfg.photometric_frame_to_frame and st.prev_rgbd is not None:
+                    f2f = joint_against(st.prev_rgbd, T_prev_cur)
+                else:
+                    f2f = icp_against(prev, T_prev_cur)
                 status.f2f_fitness = round(float(f2f.fitness), 4)
                 if f2f.fitness >= cfg.min_fitness and (
                     translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source)
@@ -425,6 +456,7 @@ class Tracker:
         st.T_world_prev = T
         st.prev_depth = depth
         st.prev_pyramid = depth_pyr
+        st.prev_rgbd = rgbd
         st.prev_features = (
             Keyframe(frame.index, frame.timestamp, T.copy(), feats)
             if feats is not None and len(feats) > 0

@@ -11,6 +11,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import open3d as o3d
 import open3d.core as o3c
@@ -50,6 +51,37 @@ def _range_map_factor(width: int, height: int) -> int:
 
 def _tensor(a: np.ndarray, dtype=None) -> o3c.Tensor:
     return o3c.Tensor(np.ascontiguousarray(a if dtype is None else a.astype(dtype)))
+
+
+def _color_at_surface(
+    color: np.ndarray, depth: np.ndarray, K: np.ndarray, R_world_cam: np.ndarray, shift_m: float
+) -> np.ndarray:
+    """Undo the half-voxel shift of the rendered colour. The ray-caster is handed a camera moved
+    by ``shift_m`` on every world axis (see :meth:`TSDFVolume.raycast`), which puts the rendered
+    *surface* right, but Open3D reads the colour field without the TSDF's offset, so pixel u shows
+    the colour of its surface point X(u) moved by s = shift_m (1, 1, 1) (world): a sideways shift
+    of the texture in the image (~0.9 px at 2 m, 1 cm voxels, 320x240). The colour of X(u) is
+    shown at the pixel whose point is X(u) - s, i.e. at pi(X(u) - s): resample there."""
+    h, w = depth.shape
+    s = R_world_cam.T @ np.full(3, shift_m)  # camera frame
+    u = np.arange(w, dtype=np.float32)[None, :]
+    v = np.arange(h, dtype=np.float32)[:, None]
+    z = depth.astype(np.float32)
+    x = (u - np.float32(K[0, 2])) * z / np.float32(K[0, 0]) - np.float32(s[0])
+    y = (v - np.float32(K[1, 2])) * z / np.float32(K[1, 1]) - np.float32(s[1])
+    zz = z - np.float32(s[2])
+    ok = (z > 0) & (zz > 1e-3)
+    zz = np.where(ok, zz, np.float32(1.0))
+    mx = np.where(ok, np.float32(K[0, 0]) * x / zz + np.float32(K[0, 2]), u)
+    my = np.where(ok, np.float32(K[1, 1]) * y / zz + np.float32(K[1, 2]), v)
+    out = cv2.remap(
+        np.ascontiguousarray(color, np.float32),
+        mx.astype(np.float32),
+        my.astype(np.float32),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
+    return out
 
 
 class TSDFVolume:
@@ -186,7 +218,11 @@ class TSDFVolume:
             # Open3D returns camera-frame normals pointing into the surface; flip to face the camera
             normals = -out["normal"].numpy().astype(np.float32)
             normals[depth <= 0] = 0.0
-        color = out["color"].numpy() if "color" in attrs else None
+        color = None
+        if "color" in attrs:
+            color = _color_at_surface(
+                out["color"].numpy(), depth, K, T_world_cam[:3, :3], 0.5 * self.cfg.voxel_size_m
+            )
         return Rendering(depth, normals, color)
 
     def render(

@@ -115,4 +115,46 @@ def test_depth_only_sequence(tmp_path):
     (root / "rgb.txt").unlink()
     seq = open_sequence(root)
     assert not seq.has_color and seq[0].color is None
-    assert seq.color_registered  # TUM: depth registered to colour (when there is colour)
+    assert not seq.color_registered  # no colour: nothing to register
+
+
+
+def _write_calib(root, text):
+    (root / "calibration.yaml").write_text(text)
+    return root
+
+
+FR1_YAML = (
+    "width: 640\nheight: 480\nfx: 517.3\nfy: 516.5\ncx: 318.6\ncy: 255.3\ndepth_scale: 5000\n"
+)
+
+
+def test_tum_fr1_intrinsics_come_with_their_published_distortion(tmp_path):
+    """TUM's calibrated fr1 intrinsics were estimated with fr1's distortion, and fr1 images are
+    distributed as recorded: a calibration stating those intrinsics and no distortion gets it;
+    one stating its own distortion, or an override, keeps what it says."""
+    root = _write_calib(_write_seq(tmp_path / "a", [0.0], [0.0]), FR1_YAML)
+    c = open_sequence(root).calibration
+    assert (c.k1, c.k2, c.p1, c.p2, c.k3) == (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
+    root = _write_calib(_write_seq(tmp_path / "b", [0.0], [0.0]), FR1_YAML + "k1: 0.1\n")
+    assert open_sequence(root).calibration.distortion.tolist() == [0.1, 0, 0, 0, 0]
+    off = dict.fromkeys(("k1", "k2", "p1", "p2", "k3"), 0.0)
+    assert not open_sequence(root, calibration_overrides=off).calibration.has_distortion
+    root = _write_calib(_write_seq(tmp_path / "c", [0.0], [0.0]), FR1_YAML.replace("517.3", "520"))
+    assert not open_sequence(root).calibration.has_distortion
+
+
+def test_frames_are_undistorted(tmp_path):
+    root = _write_seq(tmp_path / "s", [0.0], [0.0])
+    depth = np.tile(5000 + 100 * np.arange(64), (48, 1)).astype(np.uint16)
+    cv2.imwrite(str(root / "depth/0.png"), depth)
+    plain = open_sequence(root)[0].depth_m
+    _write_calib(
+        root,
+        "width: 64\nheight: 48\nfx: 50.0\nfy: 50.0\ncx: 31.5\ncy: 23.5\ndepth_scale: 5000.0\n"
+        "k1: 0.3\n",
+    )
+    und = open_sequence(root)[0].depth_m
+    assert und[24, 32] == plain[24, 32]  # the principal point stays
+    # k1 > 0: a pixel of the pinhole image lies farther out in the recorded one
+    assert und[24, 60] > plain[24, 60] and und[24, 4] < plain[24, 4]

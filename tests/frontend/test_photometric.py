@@ -1,0 +1,57 @@
+import numpy as np
+
+from slam.frontend.photometric import RgbdImage, grey, joint_align
+from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
+from tests.conftest import look_at
+
+
+def _textured_wall(K, w, h, T_world_cam):
+    """Depth and colour of the wall z = 2 (world), textured by two crossed sinusoids."""
+    u, v = np.meshgrid(np.arange(w), np.arange(h))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], -1)
+    d = rays @ T_world_cam[:3, :3].T
+    t = (2.0 - T_world_cam[2, 3]) / d[..., 2]
+    x, y = T_world_cam[0, 3] + t * d[..., 0], T_world_cam[1, 3] + t * d[..., 1]
+    g = 0.5 + 0.2 * np.sin(2 * np.pi * x / 0.23) + 0.2 * np.sin(2 * np.pi * (0.6 * x + y) / 0.17)
+    color = np.repeat((g * 255).round().astype(np.uint8)[..., None], 3, -1)
+    return t.astype(np.float32), color  # rays have z = 1: t is the z-depth
+
+
+def test_colour_resolves_sliding_along_a_flat_wall():
+    """A flat wall leaves point-to-plane ICP blind to sliding along it (and to the turn about
+    its normal); the photometric term of the joint alignment recovers the motion (measured:
+    22 mm / 1 deg off without it, 0.003 mm / 0.0001 deg with it)."""
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
+    T_a = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 2.0], up=(0, -1, 0))
+    motion = exp_se3(np.array([0.0, 0.0, np.radians(1.0), 0.02, -0.01, 0.0]))
+    da, ca = _textured_wall(K, 320, 240, T_a)
+    db, cb = _textured_wall(K, 320, 240, T_a @ motion)
+    target = RgbdImage(da, grey(ca), K, 3)
+    source = RgbdImage(db, grey(cb), K, 3)
+    geo = joint_align(source, target, np.eye(4), [6, 4, 2], photometric_weight=0.0)
+    joint = joint_align(source, target, np.eye(4), [6, 4, 2], photometric_weight=1.0)
+    err_geo = inv_T(motion) @ geo.T_target_source
+    err = inv_T(motion) @ joint.T_target_source
+    assert translation_norm(err_geo) > 0.01  # geometry alone cannot see the sliding
+    assert translation_norm(err) < 1e-3, translation_norm(err)
+    assert rotation_angle_deg(err) < 0.05
+    assert joint.fitness > 0.8
+
+
+def test_colour_term_only_where_colour_is_registered(tmp_path):
+    """7-Scenes (also converted to the TUM layout, its pose/ files kept) keeps the depth-only
+    path: its colour camera is not registered to depth."""
+    from slam.config import TrackingConfig
+    from slam.data import open_sequence
+    from slam.frontend.tracker import Tracker
+    from tests.data.test_tum import _write_seq
+
+    cfg = TrackingConfig(photometric_weight=1.0)
+    assert Tracker(cfg, color_registered=True).photometric
+    assert not Tracker(cfg, color_registered=False).photometric
+    assert not Tracker(TrackingConfig(), color_registered=True).photometric  # off by default
+    root = _write_seq(tmp_path / "s", [0.0], [0.0])
+    assert open_sequence(root).color_registered
+    (root / "pose").mkdir()
+    (root / "pose" / "frame-000000.pose.txt").write_text(" ".join(["1", "0", "0", "0"] * 4))
+    assert not open_sequence(root).color_registered
