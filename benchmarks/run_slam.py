@@ -41,6 +41,8 @@ def main() -> None:
         "frames": m["frames"],
         "ate_rmse_m": m.get("ate_rmse_m"),
         "ate_rmse_odometry_m": m.get("ate_rmse_odometry_m"),
+        "ate_rmse_pose_graph_m": m.get("ate_rmse_pose_graph_m"),
+        "ba": m.get("ba"),
         "rpe_trans_rmse_m": m.get("rpe_trans_rmse_m"),
         "fps": m["fps"],
         "fps_tracking_fusion": m["fps_tracking_fusion"],

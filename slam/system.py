@@ -119,6 +119,7 @@ class Slam:
         self.stage_ms = {"load": 0.0, "tracking": 0.0, "integration": 0.0, "loop": 0.0}
         self.elapsed_s = 0.0  # time spent in step() and skip()
         self.relocalisations: list[dict[str, Any]] = []
+        self.graph_adjusted = False  # a mid-run BA moved the graph's nodes since it was solved
         self.segment = -1  # the current map segment (-1: not started)
         self.run = -1  # the current tracking run
         self.lost = False
@@ -250,6 +251,7 @@ class Slam:
         if accepted and self.ba.due_after_loop(kf.id):
             res = self.ba.optimise(nodes, closer.graph.edges, reason=f"loop at keyframe {kf.id}")
             nodes.update(res.poses)  # later loop checks and matching start from BA's poses
+            self.graph_adjusted = self.graph_adjusted or bool(res.poses)
 
     def _lose(self, status: TrackingStatus) -> None:
         status.path = "lost"
@@ -375,6 +377,11 @@ class Slam:
         runs = np.array(self.rows.run)
         kfs = self.closer.keyframes
         corrected = self.closer.optimisations > 0 or len(self.components()) > 1
+        if self.graph_adjusted:
+            # the pose graph's own solution (a mid-run BA left its poses in the nodes): the
+            # trajectory of the pose graph alone, and where the final BA starts from
+            self.closer.graph.optimize()
+            self.graph_adjusted = False
         pose_graph_poses = {kf.id: self.closer.T_world_kf(kf.id) for kf in kfs}
         kf_poses = dict(pose_graph_poses)
         if self.cfg.ba.at_finish:
@@ -553,6 +560,7 @@ class Slam:
             "stage_ms": dict(self.stage_ms),
             "elapsed_s": self.elapsed_s,
             "relocalisations": list(self.relocalisations),
+            "graph_adjusted": self.graph_adjusted,
             "segment": self.segment,
             "run": self.run,
             "lost": self.lost,
@@ -598,6 +606,7 @@ class Slam:
         self.stage_ms = dict(state["stage_ms"])
         self.elapsed_s = float(state["elapsed_s"])
         self.relocalisations = list(state["relocalisations"])
+        self.graph_adjusted = bool(state["graph_adjusted"])
         self.segment = int(state["segment"])
         self.run = int(state["run"])
         self.lost = bool(state["lost"])

@@ -46,10 +46,13 @@ def test_7scenes_revisit_is_closed():
         return np.array(out)
 
     before = disagreement_m(res.odometry.poses)  # frame index = row: every frame is tracked
-    after = disagreement_m(res.trajectory.poses)
+    after = disagreement_m(res.pose_graph.poses)
     assert np.median(before) > 0.03, before  # measured 5-10 cm: odometry has drifted
     assert np.median(after) < 0.015, after  # measured 0.2-1.5 cm
-    assert m["ate_rmse_m"] < 1.05 * m["ate_rmse_odometry_m"], m
+    assert m["ate_rmse_pose_graph_m"] < 1.05 * m["ate_rmse_odometry_m"], m
+    # bundle adjustment then moves the keyframes by the ORB evidence (colour not registered to
+    # depth here, so its depth term is weak): it must not make the trajectory worse
+    assert m["ate_rmse_m"] <= m["ate_rmse_pose_graph_m"] + 0.001, m
 
 
 def test_cabinet_keyframes_end_to_end():

@@ -117,16 +117,18 @@ def from_overrides(overrides: dict[str, Any] | None) -> Calibration | None:
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
     if any(k not in given for k in KEYS):
         return None
-    unknown = sorted(set(given) - set(KEYS))
+    unknown = sorted(set(given) - set(KEYS + DISTORTION_KEYS))
     if unknown:
         raise CalibrationError(
-            f"unknown calibration override {unknown[0]!r}; expected one of {KEYS}"
+            f"unknown calibration override {unknown[0]!r}; expected one of "
+            f"{KEYS + DISTORTION_KEYS}"
         )
     try:
         return Calibration(
             width=int(given["width"]),
             height=int(given["height"]),
             **{k: float(given[k]) for k in ("fx", "fy", "cx", "cy", "depth_scale")},
+            **{k: float(given[k]) for k in DISTORTION_KEYS if k in given},
         )
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"dataset.calibration: non-numeric value: {exc}") from exc
