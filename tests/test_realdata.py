@@ -106,3 +106,19 @@ def test_fr1_xyz_metrics_equal_slam_eval(tmp_path):
     assert m["ate_rmse_odometry_m"] == ev["odometry"]["ate_rmse_m"]
     assert 200 < m["matched_poses"] <= m["frames_in_trajectory"] <= 250
     assert m["ate_rmse_m"] < 0.05, m["ate_rmse_m"]
+
+
+def test_fr1_xyz_tracking_accuracy():
+    """The first 300 frames of tum-fr1-xyz (real, motion-capture ground truth): fr1's lens
+    distortion is undistorted (TUM's published model for its calibrated intrinsics) and bundle
+    adjustment refines the loop-closed keyframes. Measured odometry 0.0172 m, final 0.0132 m;
+    without undistortion 0.0191 / 0.0147 m (run-to-run spread about 2%)."""
+    seq = slam.open_sequence(shared_sequence("tum-fr1-xyz"))
+    assert seq.calibration.has_distortion and seq.calibration.k1 == 0.2624
+    cfg = slam.SlamConfig()
+    cfg.dataset.max_frames = 300
+    m = slam.run(seq, cfg).metrics
+    assert m["tracking_failures"] == 0
+    assert m["ate_rmse_odometry_m"] < 0.0185, m["ate_rmse_odometry_m"]
+    assert m["ate_rmse_m"] < 0.0145, m["ate_rmse_m"]
+    assert m["ate_rmse_m"] <= m["ate_rmse_pose_graph_m"], m
