@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
 from common import machine, peak_rss_mb, sequence_path, write_result
 
@@ -19,7 +20,9 @@ import slam
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("sequence", help="demo, or a folder name under ../shared/datasets")
+    parser.add_argument(
+        "sequence", help="demo, demo-drift, a folder name under ../shared/datasets, or a path"
+    )
     parser.add_argument("--config", default=None, help="YAML config overrides")
     parser.add_argument("--max-frames", type=int, default=None)
     parser.add_argument("--out", default=None, help="also save the run folder here")
@@ -58,7 +61,7 @@ def main() -> None:
         "peak_rss_mb": round(peak_rss_mb(), 1),
         "machine": machine(),
     }
-    out = write_result(f"slam-{args.sequence}{args.tag}", data)
+    out = write_result(f"slam-{Path(args.sequence).name}{args.tag}", data)
     print(
         f"{out}: ATE {data['ate_rmse_m']:.4f} m (odometry {data['ate_rmse_odometry_m']:.4f} m), "
         f"{data['loops_accepted']} loops, {data['seconds']:.1f} s, {data['fps']:.2f} fps, "

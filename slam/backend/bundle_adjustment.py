@@ -58,6 +58,7 @@ from slam.backend.landmarks import LandmarkMap
 from slam.backend.pose_graph import Edge
 from slam.config import BAConfig
 from slam.errors import SlamError
+from slam.frontend.features import SCALE_FACTOR
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 
 log = logging.getLogger(__name__)
@@ -78,7 +79,9 @@ class BAProblem:
     """Observations for bundle adjustment: observation m is keyframe ``kf[m]`` seeing landmark
     ``landmark[m]`` (0 .. L-1; ``landmark_ids`` names them in the landmark map) at pixel
     ``uv[m]`` with measured depth ``depth[m]`` (<= 0: no depth, pixel only); ``feature[m]`` is
-    the keypoint's row in the keyframe's features. ``K``: intrinsics of the pixels."""
+    the keypoint's row in the keyframe's features; ``level[m]`` its ORB pyramid level (its pixel
+    noise is ``pixel_sigma_px * SCALE_FACTOR**level``, as in ORB-SLAM; None: all 0). ``K``:
+    intrinsics of the pixels."""
 
     K: np.ndarray
     kf: np.ndarray
@@ -87,6 +90,7 @@ class BAProblem:
     landmark_ids: np.ndarray
     uv: np.ndarray
     depth: np.ndarray
+    level: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.kf)
@@ -105,15 +109,23 @@ class BAProblem:
         ids, compact = np.unique(lm, return_inverse=True)
         uv = np.zeros((len(kf), 2))
         depth = np.zeros(len(kf))
+        level = np.zeros(len(kf), np.int64)
         K = np.eye(3)
         for k in np.unique(kf):
             key = kf == k
             f = landmarks.keyframes[int(k)].features
             uv[key] = f.pixels[feat[key]]
             depth[key] = f.points_cam[feat[key], 2]
+            level[key] = f.levels()[feat[key]]
         if len(kf):
             K = landmarks.K(landmarks.keyframes[int(kf[0])])
-        return cls(K, kf, feat, compact.astype(np.int64), ids, uv, depth)
+        return cls(K, kf, feat, compact.astype(np.int64), ids, uv, depth, level)
+
+    def pixel_scale(self) -> np.ndarray:
+        """Per observation: its pixel noise in units of ``pixel_sigma_px`` (1 at level 0)."""
+        if self.level is None:
+            return np.ones(len(self))
+        return SCALE_FACTOR ** self.level.astype(float)
 
     def cap_tracks(self, max_observations: int) -> BAProblem:
         """The problem with each landmark seen by at most ``max_observations`` keyframes,
@@ -154,6 +166,7 @@ class BAProblem:
             self.landmark_ids[ids],
             self.uv[keep],
             self.depth[keep],
+            None if self.level is None else self.level[keep],
         )
 
 
@@ -265,9 +278,13 @@ def residuals(
     has_d = problem.depth > 0
     dd = np.where(has_d, bf / np.where(has_d, problem.depth, 1.0) - bf / zs, 0.0)  # u_R error
     reproj = np.sqrt(du**2 + dv**2)
-    info = np.linalg.inv(_noise_cov(fx, pixel_sigma, depth_sigma))
-    e = np.stack([du, du + dd, dv], axis=1)
-    chi2 = np.where(has_d, np.einsum("mi,ij,mj->m", e, info, e), (du**2 + dv**2) / pixel_sigma**2)
+    sigma = pixel_sigma * problem.pixel_scale()
+    # the inverse of _noise_cov per observation, in closed form: (u_L, u_R, v) with
+    # Cov = [[s2, s2, 0], [s2, s2 + sd2, 0], [0, 0, s2]]
+    s2 = sigma**2
+    sd2 = (fx * VIRTUAL_BASELINE_M * depth_sigma) ** 2
+    chi2_d = (du**2 * (s2 + sd2) - 2 * du * (du + dd) * s2 + (du + dd) ** 2 * s2) / (s2 * sd2)
+    chi2 = np.where(has_d, chi2_d + dv**2 / s2, (du**2 + dv**2) / s2)
     reproj = np.where(front, reproj, np.inf)
     chi2 = np.where(front, chi2, np.inf)
     return reproj, chi2
@@ -343,10 +360,23 @@ def bundle_adjust(
     calib = gtsam.Cal3_S2Stereo(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2], VIRTUAL_BASELINE_M)
     calib_mono = gtsam.Cal3_S2(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2])
     huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / sigma)
-    stereo_noise = gtsam.noiseModel.Robust.Create(
-        huber, gtsam.noiseModel.Gaussian.Covariance(_noise_cov(K[0, 0], sigma, cfg.depth_sigma_m))
-    )
-    mono_noise = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, sigma))
+    # one noise model per ORB pyramid level: a keypoint's pixel noise grows with its level
+    levels = np.unique(problem.level) if problem.level is not None else np.zeros(1, np.int64)
+    stereo_noise = {
+        int(lv): gtsam.noiseModel.Robust.Create(
+            huber,
+            gtsam.noiseModel.Gaussian.Covariance(
+                _noise_cov(K[0, 0], sigma * SCALE_FACTOR ** int(lv), cfg.depth_sigma_m)
+            ),
+        )
+        for lv in levels
+    }
+    mono_noise = {
+        int(lv): gtsam.noiseModel.Robust.Create(
+            huber, gtsam.noiseModel.Isotropic.Sigma(2, sigma * SCALE_FACTOR ** int(lv))
+        )
+        for lv in levels
+    }
     prior_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
 
     def build(prob: BAProblem, pts: np.ndarray, start: Mapping[int, np.ndarray]):
@@ -360,14 +390,19 @@ def bundle_adjust(
         for k in sorted(held):
             graph.add(gtsam.PriorFactorPose3(_x(k), gtsam.Pose3(start[k]), prior_noise))
         bf = K[0, 0] * VIRTUAL_BASELINE_M
-        for k, lm, (u, v), z in zip(prob.kf.tolist(), prob.landmark.tolist(), prob.uv, prob.depth):
+        obs_level = (
+            prob.level.tolist() if prob.level is not None else [0] * len(prob)
+        )
+        for k, lm, (u, v), z, lv in zip(
+            prob.kf.tolist(), prob.landmark.tolist(), prob.uv, prob.depth, obs_level
+        ):
             if z > 0:
                 m = gtsam.StereoPoint2(u, u - bf / z, v)
-                graph.add(gtsam.GenericStereoFactor3D(m, stereo_noise, _x(k), _l(lm), calib))
+                graph.add(gtsam.GenericStereoFactor3D(m, stereo_noise[lv], _x(k), _l(lm), calib))
             else:
                 graph.add(
                     gtsam.GenericProjectionFactorCal3_S2(
-                        gtsam.Point2(u, v), mono_noise, _x(k), _l(lm), calib_mono
+                        gtsam.Point2(u, v), mono_noise[lv], _x(k), _l(lm), calib_mono
                     )
                 )
         for e in edges:
