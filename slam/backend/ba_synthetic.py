@@ -15,6 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from slam.backend.bundle_adjustment import BAProblem
+from slam.frontend.features import SCALE_FACTOR
 from slam.geometry import exp_se3, inv_T, make_T
 
 K_VGA = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
@@ -80,6 +81,7 @@ def make_problem(
     pixel_sigma: float = 0.5,
     depth_sigma: float = 0.002,
     outlier_fraction: float = 0.0,
+    pyramid_levels: int = 0,
     trans_m: float = 0.03,
     rot_deg: float = 2.0,
     seed: int = 0,
@@ -87,12 +89,14 @@ def make_problem(
     """Keyframes on the circle (``laps`` laps), landmarks on the walls; each keyframe observes
     up to ``max_observations`` visible landmarks (depth 0.3-4 m) with pixel noise
     ``pixel_sigma`` and depth noise ``depth_sigma`` * z^2; ``outlier_fraction`` of the
-    observations get a random pixel (and a depth off by up to 50%). Initial poses: all but
-    the first perturbed by ``trans_m`` / ``rot_deg``."""
+    observations get a random pixel (and a depth off by up to 50%). With ``pyramid_levels``
+    > 0 each observation is a keypoint of a random ORB pyramid level below it, its pixel noise
+    ``pixel_sigma * SCALE_FACTOR**level`` (recorded in ``problem.level``). Initial poses: all
+    but the first perturbed by ``trans_m`` / ``rot_deg``."""
     rng = np.random.default_rng(seed)
     points = room_points(n_points, rng)
     poses = circle_poses(n_keyframes, laps)
-    kf_l, lm_l, uv_l, z_l = [], [], [], []
+    kf_l, lm_l, uv_l, z_l, lv_l = [], [], [], [], []
     for k, T in enumerate(poses):
         pc = (points - T[:3, 3]) @ T[:3, :3]
         z = pc[:, 2]
@@ -103,12 +107,16 @@ def make_problem(
             vis = rng.choice(vis, max_observations, replace=False)
         kf_l.append(np.full(len(vis), k))
         lm_l.append(vis)
-        uv_l.append(np.stack([u[vis], v[vis]], 1) + rng.normal(0, pixel_sigma, (len(vis), 2)))
+        level = rng.integers(0, pyramid_levels, len(vis)) if pyramid_levels > 0 else np.zeros(len(vis), int)
+        sigma = pixel_sigma * SCALE_FACTOR ** level.astype(float)
+        lv_l.append(level)
+        uv_l.append(np.stack([u[vis], v[vis]], 1) + rng.normal(0, 1, (len(vis), 2)) * sigma[:, None])
         z_l.append(z[vis] + rng.normal(0, 1, len(vis)) * depth_sigma * z[vis] ** 2)
     kf = np.concatenate(kf_l)
     lm = np.concatenate(lm_l)
     uv = np.concatenate(uv_l)
     z = np.concatenate(z_l)
+    lv = np.concatenate(lv_l)
     outlier = rng.random(len(kf)) < outlier_fraction
     n_out = int(outlier.sum())
     uv[outlier] = rng.random((n_out, 2)) * [640, 480]
@@ -116,9 +124,9 @@ def make_problem(
     # keep landmarks seen at least twice
     counts = np.bincount(lm, minlength=n_points)
     keep = counts[lm] >= 2
-    kf, lm, uv, z, outlier = kf[keep], lm[keep], uv[keep], z[keep], outlier[keep]
+    kf, lm, uv, z, lv, outlier = kf[keep], lm[keep], uv[keep], z[keep], lv[keep], outlier[keep]
     ids, compact = np.unique(lm, return_inverse=True)
-    problem = BAProblem(K_VGA.copy(), kf, np.arange(len(kf)), compact, ids, uv, z)
+    problem = BAProblem(K_VGA.copy(), kf, np.arange(len(kf)), compact, ids, uv, z, lv)
     truth = {k: T for k, T in enumerate(poses)}
     init = {
         k: (T.copy() if k == 0 else perturb(T, rng, trans_m, rot_deg)) for k, T in truth.items()
