@@ -56,6 +56,11 @@ class TrackingConfig:
     iterations: list[int] = field(default_factory=lambda: [6, 4, 2])  # coarse ... fine
     depth_min_m: float = 0.2
     depth_max_m: float = 4.0
+    # ICP uses depth up to this range (a Kinect's depth noise grows as z^2 and is structured
+    # beyond ~2.5 m) when it holds at least icp_near_fraction of the frame's valid pixels, else
+    # all depth up to depth_max_m (far scenes)
+    icp_depth_max_m: float = 2.5
+    icp_near_fraction: float = 0.3
     # projective correspondences farther apart are rejected (at the finest level; 3 cm is the
     # inlier distance of the checks too). Against 7 cm: tum-fr1-xyz odometry 0.0157 -> 0.0143 m,
     # cabinet 0.0625 -> 0.0254 m, 7-Scenes 0.0536 -> 0.0532 m, the synthetic loops unchanged
@@ -254,6 +259,8 @@ class SlamConfig:
             (all(i >= 0 for i in t.iterations) and sum(t.iterations) > 0, "tracking.iterations", t.iterations, "non-negative counts, not all 0"),
             (t.depth_min_m >= 0, "tracking.depth_min_m", t.depth_min_m, ">= 0"),
             (t.depth_max_m > t.depth_min_m, "tracking.depth_max_m", t.depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),
+            (t.icp_depth_max_m > t.depth_min_m, "tracking.icp_depth_max_m", t.icp_depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),
+            (0 <= t.icp_near_fraction <= 1, "tracking.icp_near_fraction", t.icp_near_fraction, "in [0, 1]"),
             (t.max_correspondence_m > 0, "tracking.max_correspondence_m", t.max_correspondence_m, "> 0"),
             (t.huber_delta_m > 0, "tracking.huber_delta_m", t.huber_delta_m, "> 0"),
             (t.coarse_correspondence_factor >= 1, "tracking.coarse_correspondence_factor", t.coarse_correspondence_factor, ">= 1"),

