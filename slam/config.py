@@ -195,8 +195,8 @@ class BAConfig:
     match_ratio: float = 0.85  # best over second-best distance among the candidates in reach
     depth_tolerance: float = 0.05  # the predicted depth must agree within 2 cm + this fraction
     # the factor graph: pixel noise of an ORB keypoint of pyramid level 0 (x 1.2 per level),
-    # depth noise at 1 m (grows with depth^2,
-    # as a structured-light sensor's disparity noise), Huber threshold in pixels. The depth
+    # depth noise at 1 m (grows with depth^2, as a structured-light sensor's disparity noise),
+    # Huber threshold in pixels. The depth
     # noise is well above a Kinect's nominal ~3 mm: keypoints sit on corners, often on depth
     # edges, and colour and depth are not captured at the same instant (TUM fr1-xyz keyframe
     # ATE after BA: 12.1 mm at 0.004, 10.2 mm at 0.02, 10.5 mm at 0.06)

@@ -107,10 +107,13 @@ def make_problem(
             vis = rng.choice(vis, max_observations, replace=False)
         kf_l.append(np.full(len(vis), k))
         lm_l.append(vis)
-        level = rng.integers(0, pyramid_levels, len(vis)) if pyramid_levels > 0 else np.zeros(len(vis), int)
+        level = np.zeros(len(vis), np.int64)
+        if pyramid_levels > 0:
+            level = rng.integers(0, pyramid_levels, len(vis))
         sigma = pixel_sigma * SCALE_FACTOR ** level.astype(float)
         lv_l.append(level)
-        uv_l.append(np.stack([u[vis], v[vis]], 1) + rng.normal(0, 1, (len(vis), 2)) * sigma[:, None])
+        noise = rng.normal(0, 1, (len(vis), 2)) * sigma[:, None]
+        uv_l.append(np.stack([u[vis], v[vis]], 1) + noise)
         z_l.append(z[vis] + rng.normal(0, 1, len(vis)) * depth_sigma * z[vis] ** 2)
     kf = np.concatenate(kf_l)
     lm = np.concatenate(lm_l)

@@ -394,9 +394,7 @@ def bundle_adjust(
         for k in sorted(held):
             graph.add(gtsam.PriorFactorPose3(_x(k), gtsam.Pose3(start[k]), prior_noise))
         bf = K[0, 0] * VIRTUAL_BASELINE_M
-        obs_level = (
-            prob.level.tolist() if prob.level is not None else [0] * len(prob)
-        )
+        obs_level = prob.level.tolist() if prob.level is not None else [0] * len(prob)
         for k, lm, (u, v), z, lv in zip(
             prob.kf.tolist(), prob.landmark.tolist(), prob.uv, prob.depth, obs_level
         ):

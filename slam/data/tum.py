@@ -133,11 +133,12 @@ class TumSequence(Sequence):
 
     Frames are the one-to-one nearest-timestamp pairs of ``rgb.txt`` and ``depth.txt`` (within
     ``max_dt`` seconds); a frame's timestamp is its depth image's: the pose is estimated from the
-    depth (ICP against the model), so that is the moment it belongs to (TUM fr1's colour and depth
-    are up to 14 ms apart; stamped at the colour's time the final ATE on ``tum-fr1-xyz`` reads
-    ~10% worse). Without ``rgb.txt`` the sequence is depth-only. Calibration: ``calibration.yaml`` in the folder, else the TUM defaults when the
-    folder name says freiburg1/2/3, else a :class:`CalibrationError`; ``calibration_overrides``
-    (from config/CLI) replace single fields.
+    depth (ICP against the model), so that is the moment it belongs to (TUM fr1's colour and
+    depth are up to 14 ms apart; stamped at the colour's time the final ATE on ``tum-fr1-xyz``
+    reads ~10% worse). Without ``rgb.txt`` the sequence is depth-only. Calibration:
+    ``calibration.yaml`` in the folder, else the TUM defaults when the folder name says
+    freiburg1/2/3, else a :class:`CalibrationError`; ``calibration_overrides`` (from config/CLI)
+    replace single fields.
     """
 
     def __init__(
