@@ -16,40 +16,17 @@ Nothing else should run meanwhile.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import statistics
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
-from common import ROOT, machine, sequence_path, write_result
+from common import ROOT, machine, run_in_child, sequence_path, write_result
 
-_CHILD = """
-import json, logging, sys
-import slam
-logging.basicConfig(level=logging.WARNING)
-cfg = slam.load_config(sys.argv[2] or None)
-seq = slam.open_sequence(sys.argv[1], cfg.dataset.layout, cfg.dataset.calibration)
-m = slam.run(seq, cfg).metrics
-keys = ("seconds", "fps", "fps_tracking_fusion", "ate_rmse_m", "ate_rmse_odometry_m",
-        "ate_rmse_pose_graph_m", "frames")
-print(json.dumps({k: m.get(k) for k in keys}))
-"""
-
-
-def _run(tree: Path, path: Path, config: str) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(tree)}
-    out = subprocess.run(
-        [sys.executable, "-c", _CHILD, str(path), config],
-        check=True,
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=tree,
-    )
-    return json.loads(out.stdout.strip().splitlines()[-1])
+KEYS = (
+    "seconds", "fps", "fps_tracking_fusion", "ate_rmse_m", "ate_rmse_odometry_m",
+    "ate_rmse_pose_graph_m", "frames",
+)
 
 
 def main() -> None:
@@ -79,7 +56,9 @@ def main() -> None:
         try:
             for i in range(args.repeats):
                 order = ["a", "b"] if i % 2 == 0 else ["b", "a"]
-                pair = {arm: _run(arms[arm][0], path, arms[arm][1]) for arm in order}
+                pair = {
+                    arm: run_in_child(path, arms[arm][1], KEYS, arms[arm][0]) for arm in order
+                }
                 pair["seconds_ratio"] = pair["b"]["seconds"] / pair["a"]["seconds"]
                 pair["fps_tf_ratio"] = (
                     pair["b"]["fps_tracking_fusion"] / pair["a"]["fps_tracking_fusion"]

@@ -1,4 +1,5 @@
-"""Shared helpers for the benchmark scripts: sequence lookup and JSON output."""
+"""Shared helpers for the benchmark scripts: sequence lookup, runs in fresh processes, JSON
+output."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import json
 import os
 import platform
 import resource
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,3 +44,32 @@ def write_result(name: str, data: dict) -> Path:
     out = RESULTS / f"{name}.json"
     out.write_text(json.dumps(data, indent=2) + "\n")
     return out
+
+
+_CHILD = """
+import json, logging, sys
+import slam
+logging.basicConfig(level=logging.WARNING)
+cfg = slam.load_config(sys.argv[2] or None)
+seq = slam.open_sequence(sys.argv[1], cfg.dataset.layout, cfg.dataset.calibration)
+m = slam.run(seq, cfg).metrics
+print(json.dumps({k: m.get(k) for k in sys.argv[3].split(",")}))
+"""
+
+
+def run_in_child(
+    path: Path, config: str, keys: tuple[str, ...], tree: Path | None = None
+) -> dict:
+    """One pipeline run (default config overridden by the YAML file ``config``, or none) in a
+    fresh process, so runs do not share caches or memory; ``tree``: the source tree to import
+    ``slam`` from (default this one). Returns the ``metrics.json`` values named by ``keys``."""
+    env = {**os.environ, "PYTHONPATH": str(tree)} if tree is not None else None
+    out = subprocess.run(
+        [sys.executable, "-c", _CHILD, str(path), config, ",".join(keys)],
+        check=True,
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])

@@ -12,38 +12,18 @@ Writes benchmarks/results/loop-overhead-<sequence>.json. Nothing else should run
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
-from common import machine, sequence_path, write_result
+from common import machine, run_in_child, sequence_path, write_result
 
 NO_LOOP = "loop: {enabled: false}\nmapping: {submap_keyframes: 0}\n"
 
-_CHILD = """
-import json, logging, sys
-import slam
-logging.basicConfig(level=logging.WARNING)
-cfg = slam.load_config(sys.argv[2] or None)
-seq = slam.open_sequence(sys.argv[1], cfg.dataset.layout, cfg.dataset.calibration)
-m = slam.run(seq, cfg).metrics
-keys = ("seconds", "fps", "fps_tracking_fusion", "ate_rmse_m", "ate_rmse_odometry_m",
-        "loops_accepted", "loops_rejected", "submaps", "stage_ms_total")
-print(json.dumps({k: m.get(k) for k in keys}))
-"""
-
-
-def _run(path: Path, config: str) -> dict:
-    out = subprocess.run(
-        [sys.executable, "-c", _CHILD, str(path), config],
-        check=True,
-        capture_output=True,
-        text=True,
-    )
-    return json.loads(out.stdout.strip().splitlines()[-1])
+KEYS = (
+    "seconds", "fps", "fps_tracking_fusion", "ate_rmse_m", "ate_rmse_odometry_m",
+    "loops_accepted", "loops_rejected", "submaps", "stage_ms_total",
+)
 
 
 def main() -> None:
@@ -61,7 +41,7 @@ def main() -> None:
             order = [("with", ""), ("without", str(no_loop))]
             if i % 2:
                 order.reverse()
-            pair = {name: _run(path, cfg) for name, cfg in order}
+            pair = {name: run_in_child(path, cfg, KEYS) for name, cfg in order}
             pair["ratio"] = pair["with"]["seconds"] / pair["without"]["seconds"]
             print(
                 f"pair {i + 1}: with {pair['with']['seconds']:.1f} s, "
