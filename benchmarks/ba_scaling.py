@@ -135,9 +135,9 @@ def _time_real(path: str, n: int) -> dict[str, Any]:
 
 
 def _time_synthetic(n: int) -> dict[str, Any]:
-    from slam.backend.ba_synthetic import make_problem, pose_errors
     from slam.backend.bundle_adjustment import bundle_adjust
     from slam.config import BAConfig
+    from slam.synthetic.ba_problem import make_problem, pose_errors
 
     # keyframes 3.6 deg apart on the circle (200: two laps, the second revisiting the first),
     # 300 observations each, 5% outliers, poses perturbed by 3 cm / 2 deg
@@ -177,8 +177,8 @@ def accuracy(name: str) -> dict[str, Any]:
     """Global BA from the pose-graph keyframes of a default run: keyframe ATE and the ATE of
     every frame after elastic correction (as the run's final trajectory is made), pose graph
     alone vs BA."""
-    from slam import eval as slam_eval
-    from slam.backend.loop_closure import elastic_correction
+    from slam.backend.finalise import elastic_correction
+    from slam.tools import eval as slam_eval
     from slam.trajectory import Trajectory
 
     with open(collect(name), "rb") as f:

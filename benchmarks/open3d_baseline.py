@@ -5,7 +5,7 @@ TSDF voxel block grid, no loop closure) on one sequence, for comparison. Writes 
 
 Follows Open3D's example ``t_reconstruction_system/dense_slam.py`` (depth_max 3.0,
 depth_diff 0.07, truncation 8 voxels), with voxel size 1 cm. Frames are read with this project's
-loaders; ATE with ``slam.eval`` (equal to evo_ape -a).
+loaders; ATE with ``slam.tools.eval`` (equal to evo_ape -a).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import open3d.core as o3c
 from common import machine, peak_rss_mb, sequence_path, write_result
 
 import slam
-from slam import eval as slam_eval
+from slam.tools import eval as slam_eval
 
 
 def main() -> None:

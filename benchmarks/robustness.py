@@ -36,7 +36,7 @@ from pathlib import Path
 from common import machine, sequence_path, write_result
 
 import slam
-from slam.data.damage import Damage, damage_sequence
+from slam.synthetic.damage import Damage, damage_sequence
 
 SLAM = [sys.executable, "-m", "slam.cli"]
 

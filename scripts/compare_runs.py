@@ -1,4 +1,4 @@
-"""Compare two (or more) run folders side by side: an example built on ``slam.eval``.
+"""Compare two (or more) run folders side by side: an example built on ``slam.tools.eval``.
 
     python scripts/compare_runs.py runs/baseline runs/loopclosure
     python scripts/compare_runs.py runs/a runs/b --labels before after --plot compare.png --json
@@ -19,8 +19,8 @@ import logging
 import sys
 from pathlib import Path
 
-from slam import eval as slam_eval
 from slam.errors import SlamError
+from slam.tools import eval as slam_eval
 from slam.trajectory import read_tum
 
 

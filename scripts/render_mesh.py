@@ -7,7 +7,7 @@ no OpenGL or display needed).
     python scripts/render_mesh.py runs/demo/mesh.ply mesh.png --eye 0 -2 -3 --target 0 0 1
 
 The default view looks from behind, above and beside the cameras at the middle of the scene
-(slam.render.default_view); ``--eye``/``--target`` choose another one (world coordinates of
+(slam.tools.render.default_view); ``--eye``/``--target`` choose another one (world coordinates of
 the run: the first camera's frame, x right, y down, z forward).
 """
 
@@ -32,7 +32,14 @@ def main(argv: list[str] | None = None) -> None:
     import cv2
     import open3d as o3d
 
-    from slam.render import FINAL_BGR, Overlay, default_view, look_at, render_mesh, render_run
+    from slam.tools.render import (
+        FINAL_BGR,
+        Overlay,
+        default_view,
+        look_at,
+        render_mesh,
+        render_run,
+    )
     from slam.trajectory import read_tum
 
     w, h = (int(x) for x in args.size.lower().split("x"))

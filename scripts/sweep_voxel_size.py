@@ -8,7 +8,7 @@
 Without ``--sequence`` it renders a synthetic loop sequence with exact ground truth (320x240,
 ``--frames`` frames) into a temporary folder. Every voxel size is one in-process run
 (``slam.run``) with only ``mapping.voxel_size_m`` changed; the trajectory is evaluated with
-``slam.eval.evaluate_full`` (ATE SE(3)-aligned as ``evo_ape -a``, RPE over 1 frame, drift).
+``slam.tools.eval.evaluate_full`` (ATE SE(3)-aligned as ``evo_ape -a``, RPE over 1 frame, drift).
 Prints a Markdown table; ``--csv`` and ``--plot`` also save it. For many sequences and settings
 at once, in parallel or on a Ray cluster, use ``slam bench`` instead.
 """
@@ -23,8 +23,8 @@ import tempfile
 from pathlib import Path
 
 import slam
-from slam import eval as slam_eval
-from slam.data.synthetic import SynthConfig, generate_sequence
+from slam.synthetic.generator import SynthConfig, generate_sequence
+from slam.tools import eval as slam_eval
 
 
 def synthetic_sequence(folder: Path, frames: int) -> Path:

@@ -8,13 +8,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from slam.checkpoint import has_checkpoint
 from slam.config import SlamConfig, load_config
 from slam.data.base import Sequence
 from slam.data.loader import open_sequence
 from slam.errors import ConfigError, RunFolderError
 from slam.pipeline import FrameCallback, ProgressCallback, RunResult, run, save_run
 from slam.run_folder import prepare_run_dir, remove_work_dirs
+from slam.run_folder.checkpoint import has_checkpoint
 from slam.trajectory import atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -35,7 +35,7 @@ def run_sequence(
     """Open a sequence folder (``None``: the built-in synthetic demo), run SLAM, save the run
     folder. Config: ``config`` if given, else defaults overridden by the YAML at ``config_path``.
     ``rerun``: also record the run for the rerun viewer into this ``.rrd`` file
-    (:class:`slam.viewer.RerunRecorder`; needs ``rgbd-slam[viz]``).
+    (:class:`slam.tools.viewer.RerunRecorder`; needs ``rgbd-slam[viz]``).
 
     Before the first frame: the config and the sequence are checked, and ``out_dir`` must be
     writable and must not hold another run unless ``overwrite`` (which deletes its outputs).
@@ -76,7 +76,7 @@ def run_sequence(
 def _recorder(path: str | Path | None, name: str) -> Any:
     if path is None:
         return None
-    from slam.viewer import RerunRecorder
+    from slam.tools.viewer import RerunRecorder
 
     return RerunRecorder(path, name=name)
 

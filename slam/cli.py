@@ -155,7 +155,7 @@ def run(
                 "--config or --max-frames with it"
             )
         if rerun is not None:
-            from slam.viewer import check_recording_path
+            from slam.tools.viewer import check_recording_path
 
             check_recording_path(rerun)
         if sequence is None and resume is None:
@@ -242,7 +242,7 @@ def view(
 ) -> None:
     """Write the rerun 3D recording of a finished run (as `slam run --rerun` makes it while
     running): camera, images, tracking state, trajectory, keyframes, loops, mesh."""
-    from slam.viewer import open_in_viewer, record_run_folder
+    from slam.tools.viewer import open_in_viewer, record_run_folder
 
     _setup_logging(verbose)
     try:
@@ -280,7 +280,7 @@ def synth(
     ] = 0.0,
 ) -> None:
     """Render a synthetic RGB-D sequence with exact ground truth (TUM layout + calibration.yaml)."""
-    from slam.data.synthetic import SynthConfig, generate_sequence
+    from slam.synthetic.generator import SynthConfig, generate_sequence
 
     _setup_logging()
     try:
@@ -343,7 +343,7 @@ def eval_cmd(
     `slam eval RUN_DIR` evaluates the final trajectory and the odometry of a run, so the effect of
     loop closure is one command; `slam eval GT EST` evaluates any TUM-format trajectory.
     """
-    from slam import eval as slam_eval
+    from slam.tools import eval as slam_eval
     from slam.trajectory import read_tum
 
     _setup_logging()
@@ -414,7 +414,7 @@ def report_cmd(
     correct_scale: CorrectScale = False,
 ) -> None:
     """Write RUN_DIR/report.md with plots: top view with loop edges, error over time, timing."""
-    from slam.report import write_report
+    from slam.tools.report import write_report
 
     _setup_logging()
     try:
@@ -454,7 +454,7 @@ def bench_cmd(
     Each run is a separate process (or Ray task) writing OUT/runs/<sequence>__<config>/; a failed
     run is a row with its error and the suite goes on. Exit code 1 when any run failed.
     """
-    from slam.bench import format_markdown, load_suite, run_suite
+    from slam.tools.bench import format_markdown, load_suite, run_suite
 
     _setup_logging(verbose)
     try:

@@ -17,14 +17,14 @@ from typing import Any
 
 import numpy as np
 
-from slam.checkpoint import read_checkpoint, write_checkpoint
 from slam.config import SlamConfig
 from slam.data.base import Frame, Sequence
 from slam.data.checks import check_sequence
 from slam.errors import FrameReadError, SlamError
-from slam.frontend.tracker import TrackingStatus
 from slam.mapping.tsdf import write_mesh
+from slam.records import TrackingStatus
 from slam.results import RunResult
+from slam.run_folder.checkpoint import read_checkpoint, write_checkpoint
 from slam.system import FrameResult, Slam
 from slam.trajectory import Trajectory, as_written, atomic_write_text, write_tum
 
@@ -174,11 +174,11 @@ def evaluate_against_ground_truth(
     without ground truth; ``evaluation_error`` when it fails).
 
     The same numbers as ``slam eval RUN_DIR`` (``final`` and ``odometry`` ATE RMSE, RPE over
-    1 frame, matched poses, drift): the same ground truth (:func:`slam.eval.sequence_ground_truth`,
+    1 frame, matched poses, drift): the same ground truth (:func:`slam.tools.eval.sequence_ground_truth`,
     evo's definition: ``groundtruth.txt`` associated by nearest timestamp within 0.01 s), and
     the trajectories as they are written to the run folder (TUM text precision).
     """
-    from slam import eval as slam_eval
+    from slam.tools import eval as slam_eval
 
     try:
         gt, source = slam_eval.sequence_ground_truth(sequence.path, sequence)

@@ -12,10 +12,10 @@ from slam.trajectory import Trajectory
 if TYPE_CHECKING:
     import open3d as o3d
 
-    from slam.backend.loop_closure import LoopCloser
     from slam.config import SlamConfig
-    from slam.frontend.tracker import TrackingStatus
+    from slam.loops.closer import LoopCloser
     from slam.mapping.submaps import SubmapMap
+    from slam.records import TrackingStatus
 
 
 @dataclass

@@ -29,15 +29,17 @@ from typing import Any
 import numpy as np
 
 from slam.backend.adjuster import BundleAdjuster
-from slam.backend.loop_closure import KeyframeLink, LoopCloser, elastic_correction
+from slam.backend.finalise import elastic_correction
+from slam.camera import scale_intrinsics
 from slam.config import SlamConfig
 from slam.data.base import Frame
-from slam.frontend.features import FeatureSet
-from slam.frontend.loop_verification import KeyframeView
-from slam.frontend.pointcloud import depth_pyramid, scale_intrinsics
-from slam.frontend.relocalisation import Relocaliser
-from slam.frontend.tracker import Keyframe, Tracker, TrackingStatus, usable_depth_fraction
+from slam.frontend.pointcloud import depth_pyramid
+from slam.frontend.tracker import Tracker, usable_depth_fraction
+from slam.keyframe import FeatureSet, Keyframe, KeyframeView
+from slam.loops.closer import KeyframeLink, LoopCloser
+from slam.loops.relocalisation import Relocaliser
 from slam.mapping.submaps import SubmapMap
+from slam.records import TrackingStatus
 from slam.results import RunResult
 from slam.trajectory import Trajectory
 
@@ -99,9 +101,7 @@ class Slam:
     ) -> None:
         self.cfg = cfg = (config or SlamConfig()).validate()
         self.has_color = has_color
-        self.tracker = Tracker(
-            cfg.tracking, use_color=has_color, color_registered=color_registered
-        )
+        self.tracker = Tracker(cfg.tracking, use_color=has_color, color_registered=color_registered)
         spill = None if work_dir is None else f"{work_dir}/submaps"
         self.model = SubmapMap(cfg.mapping, with_color=has_color, spill_dir=spill)
         self.closer = LoopCloser(cfg.loop, cfg.backend, cfg.tracking.depth_max_m)
@@ -386,7 +386,9 @@ class Slam:
         kf_poses = dict(pose_graph_poses)
         if self.cfg.ba.at_finish:
             t_ba = time.perf_counter()
-            res = self.ba.optimise(self.closer.graph.nodes, self.closer.graph.edges, reason="finish")
+            res = self.ba.optimise(
+                self.closer.graph.nodes, self.closer.graph.edges, reason="finish"
+            )
             self.stage_ms["bundle_adjustment"] = (time.perf_counter() - t_ba) * 1e3
             kf_poses.update(res.poses)
 
@@ -431,9 +433,7 @@ class Slam:
         stage_ms = dict(self.stage_ms)
         if self.cfg.output.save_mesh:
             anchors = (
-                {sm.id: kf_poses[sm.anchor_kf] for sm in self.model.submaps}
-                if corrected
-                else None
+                {sm.id: kf_poses[sm.anchor_kf] for sm in self.model.submaps} if corrected else None
             )
             if len(main_submaps) > 1:
                 volume = self.model.rebuild(anchors, include)

@@ -75,11 +75,13 @@ def test_cabinet_teleport_is_relocalised_not_tracked_wrong(tmp_path):
     finds a plausible wrong pose on the box's other side (overlap 0.42, against 0.8-0.95
     before), which was accepted 1.6 m off; its overlap falling below 0.6 of the recent frames'
     makes it verified, it fails, and the frame is relocalised against the map's keyframes."""
-    from slam.data.damage import Damage, damage_sequence
+    from slam.synthetic.damage import Damage, damage_sequence
 
     src = shared_sequence("tum-fr3-cabinet-kf58")
     seq = slam.open_sequence(
-        damage_sequence(src, tmp_path / "tp", Damage(frames=[*range(48), *range(10, 58)], retime=True))
+        damage_sequence(
+            src, tmp_path / "tp", Damage(frames=[*range(48), *range(10, 58)], retime=True)
+        )
     )
     m = slam.run(seq).metrics
     assert m["relocalisations"] >= 1, m

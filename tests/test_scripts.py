@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from slam.eval import evaluate_run
-from tests.test_report import make_run
+from slam.tools.eval import evaluate_run
+from tests.tools.test_report import make_run
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 

@@ -5,7 +5,7 @@ import pytest
 
 import slam
 from slam.config import config_from_dict
-from slam.eval import ate
+from slam.tools.eval import ate
 
 FAST = {"tracking": {"downsample": 1}, "dataset": {"max_frames": 60}}
 

@@ -30,7 +30,7 @@ from slam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust
 from slam.backend.landmarks import LandmarkMap
 from slam.backend.pose_graph import Edge
 from slam.config import BAConfig
-from slam.frontend.tracker import Keyframe
+from slam.keyframe import Keyframe
 
 log = logging.getLogger(__name__)
 

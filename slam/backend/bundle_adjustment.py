@@ -62,8 +62,8 @@ from slam.backend.landmarks import LandmarkMap
 from slam.backend.pose_graph import Edge
 from slam.config import BAConfig
 from slam.errors import SlamError
-from slam.frontend.features import SCALE_FACTOR
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
+from slam.keyframe import SCALE_FACTOR
 
 log = logging.getLogger(__name__)
 

@@ -31,11 +31,11 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from slam.camera import project
 from slam.config import BAConfig
 from slam.errors import SlamError
-from slam.frontend.pointcloud import project
-from slam.frontend.tracker import Keyframe
 from slam.geometry import inv_T, transform_points
+from slam.keyframe import Keyframe
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,7 @@ class LandmarkError(SlamError):
 
 def colour_intrinsics(K_tracking: np.ndarray, downsample: int) -> np.ndarray:
     """The intrinsics ORB pixels refer to (the full-resolution image) from a keyframe's
-    tracking-resolution ``K`` (inverse of :func:`slam.frontend.pointcloud.scale_intrinsics`)."""
+    tracking-resolution ``K`` (inverse of :func:`slam.camera.scale_intrinsics`)."""
     K = np.asarray(K_tracking, float).copy()
     if downsample == 1:
         return K

@@ -5,41 +5,10 @@ Shared by tracking (RANSAC seed/rescue), revisit detection and relocalisation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 
-#: ORB's image pyramid: each level is this much smaller than the one below (OpenCV's default)
-SCALE_FACTOR = 1.2
-
-
-@dataclass
-class FeatureSet:
-    """ORB keypoints with valid depth: pixels (N, 2), descriptors (N, 32) uint8, 3D points (N, 3)
-    in the camera frame (metres), and the pyramid level each was found at (N,), None if
-    unknown (taken as 0). A keypoint of level l is located to within ~``SCALE_FACTOR**l``
-    pixels (measured on synthetic corners: std 1.0, 1.3, 1.5, ... 3.9 px at levels 0-7)."""
-
-    pixels: np.ndarray
-    descriptors: np.ndarray
-    points_cam: np.ndarray
-    octave: np.ndarray | None = None
-
-    def levels(self) -> np.ndarray:
-        """Pyramid level of each keypoint (0 when not recorded)."""
-        if self.octave is None:
-            return np.zeros(len(self.pixels), np.int64)
-        return np.asarray(self.octave, np.int64)
-
-    def __len__(self) -> int:
-        return len(self.pixels)
-
-    @staticmethod
-    def empty() -> FeatureSet:
-        return FeatureSet(
-            np.zeros((0, 2)), np.zeros((0, 32), np.uint8), np.zeros((0, 3)), np.zeros(0, np.int64)
-        )
+from slam.keyframe import SCALE_FACTOR, FeatureSet
 
 
 class OrbExtractor:

@@ -10,7 +10,8 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from slam.frontend.pointcloud import depth_pyramid, scale_intrinsics
+from slam.camera import scale_intrinsics
+from slam.frontend.pointcloud import depth_pyramid
 
 _odom = o3d.t.pipelines.odometry
 log = logging.getLogger(__name__)

@@ -15,7 +15,7 @@ the median absolute residual) re-estimated every iteration, so the two terms are
 their measured noise, not by units: noisy real depth hands weight to colour, exact synthetic
 depth keeps it. Pixels and intrinsics follow the pinhole convention (pixel (u, v) is the ray
 ``K^-1 [u, v, 1]``; pyramids are 2x2 box averages, see
-:func:`slam.frontend.pointcloud.scale_intrinsics`).
+:func:`slam.camera.scale_intrinsics`).
 """
 
 from __future__ import annotations
@@ -25,8 +25,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from slam.camera import scale_intrinsics
 from slam.frontend.icp import IcpResult
-from slam.frontend.pointcloud import depth_pyramid, normal_map, scale_intrinsics
+from slam.frontend.pointcloud import depth_pyramid, normal_map
 from slam.geometry import exp_se3
 
 _MAD = 1.4826

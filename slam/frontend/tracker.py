@@ -5,22 +5,18 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from slam.camera import scale_intrinsics
 from slam.config import TrackingConfig
 from slam.data.base import Frame
 from slam.errors import ConfigError
-from slam.frontend.features import FeatureSet, OrbExtractor, match_descriptors
+from slam.frontend.features import OrbExtractor, match_descriptors
 from slam.frontend.icp import IcpResult, projective_icp, projective_overlap
 from slam.frontend.photometric import RgbdImage, grey, joint_align
-from slam.frontend.pointcloud import (
-    bilateral_depth,
-    depth_pyramid,
-    downsample_depth,
-    scale_intrinsics,
-)
+from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth
 from slam.frontend.ransac import RansacResult, ransac_rigid
 from slam.geometry import (
     exp_se3,
@@ -31,58 +27,11 @@ from slam.geometry import (
     transform_points,
     translation_norm,
 )
+from slam.keyframe import FeatureSet, Keyframe
 from slam.mapping.tsdf import TSDFVolume
+from slam.records import TrackingStatus
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class Keyframe:
-    """A keyframe: frame index, odometry pose and ORB features with 3D points (camera frame);
-    keyframes also keep their depth at tracking resolution (with its intrinsics ``K``) for
-    loop verification, and ``id``, their number in the run (0, 1, ...)."""
-
-    index: int
-    timestamp: float
-    T_world_cam: np.ndarray
-    features: FeatureSet
-    depth_m: np.ndarray | None = None
-    K: np.ndarray | None = None
-    id: int = -1
-    segment: int = 0  # the map segment (tracking run from a fresh start) it belongs to
-
-
-@dataclass
-class TrackingStatus:
-    """Per-frame tracking record (written to ``tracking.csv``; summarised in ``metrics.json``).
-
-    ``path``: ``init`` (first frame of a map segment), ``icp`` (ICP from the motion
-    prediction), ``ransac+icp`` (ICP seeded by RANSAC), ``reloc`` (relocalised against a
-    keyframe after tracking was lost), ``lost`` (no pose: no usable depth, or no estimate
-    passed the checks; the frame is neither fused nor written to the trajectory). ``reason``
-    says why a frame is lost; ``gap``: the frame follows a gap (skipped frames, a timestamp
-    jump), so its pose had to be verified.
-    """
-
-    index: int
-    path: str
-    ok: bool
-    timestamp: float = 0.0
-    reason: str = ""
-    gap: bool = False
-    segment: int = 0
-    icp_fitness: float = 0.0
-    icp_rmse_m: float = 0.0
-    ransac_inliers: int = 0
-    ransac_matches: int = 0
-    overlap: float = 0.0
-    f2f_fitness: float = 0.0
-    model_rejected: bool = False
-    keyframe: bool = False
-    ms: float = 0.0
-
-    def as_row(self) -> dict:
-        return asdict(self)
 
 
 #: The constant-velocity prediction extrapolates over at most this many usual frame intervals.
@@ -509,10 +458,13 @@ class Tracker:
             if len(m) < r.min_inliers:
                 continue
             T_kf_cur = inv_T(kf.T_world_cam) @ T_world_cam
-            d = transform_points(T_kf_cur, feats.points_cam[m[:, 0]]) - kf.features.points_cam[
-                m[:, 1]
-            ]
-            best = max(best, int(np.count_nonzero(np.linalg.norm(d, axis=1) < r.inlier_threshold_m)))
+            d = (
+                transform_points(T_kf_cur, feats.points_cam[m[:, 0]])
+                - kf.features.points_cam[m[:, 1]]
+            )
+            best = max(
+                best, int(np.count_nonzero(np.linalg.norm(d, axis=1) < r.inlier_threshold_m))
+            )
         return best
 
     def _ransac_candidates(self) -> list[Keyframe]:

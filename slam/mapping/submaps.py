@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from slam.camera import scale_intrinsics
 from slam.config import MappingConfig
-from slam.frontend.pointcloud import scale_intrinsics
 from slam.geometry import inv_T
 from slam.mapping.tsdf import Rendering, TSDFVolume
 
@@ -164,7 +164,9 @@ class SubmapMap:
         )
         if self.submaps and continuous:
             prev = self.submaps[-1]
-            views = [prev.T_world_anchor @ T for T in prev.T_anchor_views[-self.cfg.submap_seed_views :]]
+            views = [
+                prev.T_world_anchor @ T for T in prev.T_anchor_views[-self.cfg.submap_seed_views :]
+            ]
             self._seed(sm, prev, views)
         elif self.submaps:
             self._spill(self.submaps[-1])
@@ -227,8 +229,7 @@ class SubmapMap:
             self._K, self._size = K.copy(), (depth_m.shape[1], depth_m.shape[0])
         targets = [self.active]
         overlap = (
-            self.active.overlaps_previous
-            and self.active.n_frames < self.cfg.submap_overlap_frames
+            self.active.overlaps_previous and self.active.n_frames < self.cfg.submap_overlap_frames
         )
         if overlap:
             targets.append(self.submaps[-2])

@@ -11,15 +11,14 @@ import numpy as np
 import pytest
 
 from slam.backend.adjuster import BundleAdjuster
-from slam.backend.ba_synthetic import make_problem, pose_errors
 from slam.backend.bundle_adjustment import BAProblem, bundle_adjust, initial_points, residuals
 from slam.backend.pose_graph import Edge
+from slam.camera import scale_intrinsics
 from slam.config import BAConfig, config_from_dict
 from slam.errors import ConfigError
-from slam.frontend.features import FeatureSet
-from slam.frontend.pointcloud import scale_intrinsics
-from slam.frontend.tracker import Keyframe
 from slam.geometry import inv_T
+from slam.keyframe import FeatureSet, Keyframe
+from slam.synthetic.ba_problem import make_problem, pose_errors
 
 #: 20 keyframes over a quarter circle, up to 600 landmarks each, pixel noise 0.5 px, depth noise
 #: 1.5 mm at 1 m (growing as z^2); all poses but the first moved by 4 cm and 3 degrees

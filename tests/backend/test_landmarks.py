@@ -15,12 +15,12 @@ from slam.backend.landmarks import (
     guided_match,
     hamming,
 )
+from slam.camera import project, scale_intrinsics
 from slam.config import BAConfig
-from slam.data.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
 from slam.frontend.features import OrbExtractor, match_descriptors
-from slam.frontend.pointcloud import project, scale_intrinsics
-from slam.frontend.tracker import Keyframe
 from slam.geometry import exp_se3, inv_T
+from slam.keyframe import Keyframe
+from slam.synthetic.generator import SynthConfig, build_scene, make_trajectory, render_frame
 
 STEP = 5  # frames between keyframes: 60 keyframes over the 300-frame loop
 

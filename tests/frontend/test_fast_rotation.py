@@ -5,18 +5,14 @@ import cv2
 import numpy as np
 import pytest
 
+from slam.camera import scale_intrinsics
 from slam.config import TrackingConfig
 from slam.data.calibration import TUM_DEFAULTS
 from slam.data.images import Undistorter
-from slam.data.synthetic import SynthConfig, build_scene, render_frame
 from slam.frontend.icp import projective_icp
-from slam.frontend.pointcloud import (
-    bilateral_depth,
-    depth_pyramid,
-    downsample_depth,
-    scale_intrinsics,
-)
+from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
+from slam.synthetic.generator import SynthConfig, build_scene, render_frame
 from tests.conftest import look_at
 
 FR1 = TUM_DEFAULTS["freiburg1"]

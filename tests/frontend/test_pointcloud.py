@@ -2,15 +2,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slam.frontend.pointcloud import (
-    backproject,
-    bilateral_depth,
-    depth_pyramid,
-    downsample_depth,
-    normal_map,
-    project,
-    scale_intrinsics,
-)
+from slam.camera import backproject, project, scale_intrinsics
+from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth, normal_map
 
 K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
 

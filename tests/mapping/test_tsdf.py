@@ -75,7 +75,7 @@ def test_fused_surface_renders_on_the_pinhole_convention_at_every_resolution():
     with no sideways offset, and so does the marching-cubes mesh. Open3D's integration reads
     pixels by truncation (half a pixel off); uncorrected, the fitted centres move ~1 mm sideways
     here, and tracking at half resolution overestimated motion by ~2% (a scale drift)."""
-    from slam.frontend.pointcloud import backproject, scale_intrinsics
+    from slam.camera import backproject, scale_intrinsics
 
     center, radius = np.array([0.0, 0.0, 1.0]), 0.4
     sphere = o3d.geometry.TriangleMesh.create_sphere(radius, resolution=200).translate(center)

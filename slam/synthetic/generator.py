@@ -805,12 +805,12 @@ def generate_sequence(
     stamps = [f"{t:.6f}" for t in traj.timestamps]
     atomic_write_text(
         out / "rgb.txt",
-        "# color images (synthetic, slam.data.synthetic)\n# timestamp filename\n"
+        "# color images (synthetic, slam.synthetic)\n# timestamp filename\n"
         + "".join(f"{s} rgb/{nm}\n" for s, nm in zip(stamps, names)),
     )
     atomic_write_text(
         out / "depth.txt",
-        "# depth maps (synthetic, slam.data.synthetic)\n# timestamp filename\n"
+        "# depth maps (synthetic, slam.synthetic)\n# timestamp filename\n"
         + "".join(f"{s} depth/{nm}\n" for s, nm in zip(stamps, names)),
     )
     write_tum(out / "groundtruth.txt", traj)

@@ -16,24 +16,15 @@ import open3d as o3d
 import open3d.core as o3c
 
 from slam.config import LoopConfig
-from slam.frontend.features import FeatureSet, match_descriptors
+from slam.frontend.features import match_descriptors
 from slam.frontend.icp import projective_icp, projective_overlap
 from slam.frontend.ransac import ransac_rigid
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
+from slam.keyframe import KeyframeView
 
 log = logging.getLogger(__name__)
 
 ICP_ITERATIONS = [8, 6, 4]  # coarse ... fine; keyframes are farther apart than frames
-
-
-@dataclass
-class KeyframeView:
-    """What verification needs of a keyframe: ORB features with 3D points, the depth image the
-    features' intrinsics ``K`` refer to after scaling, and the tracking-resolution depth."""
-
-    features: FeatureSet
-    depth_m: np.ndarray  # tracking resolution
-    K: np.ndarray  # intrinsics of ``depth_m``
 
 
 @dataclass

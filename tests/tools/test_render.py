@@ -9,9 +9,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slam.render import FINAL_BGR, KEYFRAME_BGR, render_run
+from slam.tools.render import FINAL_BGR, KEYFRAME_BGR, render_run
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "render_mesh.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "render_mesh.py"
 
 
 def share_of(img: np.ndarray, bgr: tuple[int, int, int], tol: int = 40) -> float:

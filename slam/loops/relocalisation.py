@@ -17,16 +17,15 @@ import numpy as np
 
 from slam.frontend.features import match_descriptors
 from slam.frontend.icp import projective_icp, projective_overlap
-from slam.frontend.loop_verification import (
+from slam.geometry import inv_T
+from slam.keyframe import Keyframe, KeyframeView
+from slam.loops.place_recognition import KeyframeDatabase
+from slam.loops.verification import (
     ICP_ITERATIONS,
-    KeyframeView,
     LoopVerifier,
     Verification,
     registration_information,
 )
-from slam.frontend.place_recognition import KeyframeDatabase
-from slam.frontend.tracker import Keyframe
-from slam.geometry import inv_T
 
 log = logging.getLogger(__name__)
 
@@ -44,11 +43,6 @@ class Relocalisation:
     def T_world_cam(self) -> np.ndarray:
         """The frame's pose in the keyframe's (odometry) frame."""
         return self.keyframe.T_world_cam @ self.verification.T_candidate_query
-
-
-def _view(kf: Keyframe) -> KeyframeView:
-    assert kf.depth_m is not None and kf.K is not None
-    return KeyframeView(kf.features, kf.depth_m, kf.K)
 
 
 class Relocaliser:
@@ -103,7 +97,7 @@ class Relocaliser:
         tried = 0
         for kf in self.candidates(view, keyframes):
             tried += 1
-            ver = self.verifier.verify(view, _view(kf))
+            ver = self.verifier.verify(view, kf.view())
             log.debug("relocalisation against keyframe %d: %s", kf.id, ver.reason)
             if ver.accepted:
                 return Relocalisation(kf, ver, tried)

@@ -1,4 +1,4 @@
-"""Tests of slam.data.synthetic: determinism, exact geometry, trajectory shape, sensor model, files."""
+"""Tests of slam.synthetic: determinism, exact geometry, trajectory shape, sensor model, files."""
 
 from __future__ import annotations
 
@@ -12,8 +12,9 @@ import open3d as o3d
 import pytest
 import yaml
 
-from slam.data import synthetic as synth
-from slam.data.synthetic import (
+from slam.geometry import inv_T, rotation_angle_deg
+from slam.synthetic import generator as synth
+from slam.synthetic.generator import (
     SynthConfig,
     alias_clusters,
     build_scene,
@@ -22,7 +23,6 @@ from slam.data.synthetic import (
     make_trajectory,
     render_frame,
 )
-from slam.geometry import inv_T, rotation_angle_deg
 from slam.trajectory import read_tum
 
 

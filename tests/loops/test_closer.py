@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from slam.backend.loop_closure import elastic_correction
+from slam.backend.finalise import elastic_correction
 from slam.geometry import exp_se3, inv_T, make_T
 
 

@@ -233,7 +233,7 @@ def render_run(
     import cv2
     import open3d as o3d
 
-    from slam.report import loop_edges
+    from slam.tools.report import loop_edges
     from slam.trajectory import read_tum
 
     run_dir = Path(run_dir)
@@ -254,9 +254,11 @@ def render_run(
     legend.append(("final trajectory", FINAL_BGR))
     csv_path = run_dir / "tracking.csv"
     if csv_path.is_file():
-        from slam.viewer import read_tracking_statuses
+        from slam.tools.viewer import read_tracking_statuses
 
-        kf_t = {round(s.timestamp, 6) for s in read_tracking_statuses(csv_path) if s.keyframe and s.ok}
+        kf_t = {
+            round(s.timestamp, 6) for s in read_tracking_statuses(csv_path) if s.keyframe and s.ok
+        }
         kf = [p for t, p in zip(traj.timestamps, traj.positions) if round(float(t), 6) in kf_t]
         if kf:
             ov.points.append((np.array(kf), KEYFRAME_BGR, 4))

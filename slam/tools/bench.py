@@ -311,7 +311,7 @@ def run_job(job: BenchJob) -> dict[str, Any]:
         return _failed(job, job.error)
     from slam.api import run_sequence
     from slam.config import config_from_dict
-    from slam.eval import evaluate_run
+    from slam.tools.eval import evaluate_run
 
     run_dir = Path(job.run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)

@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 
 from slam.config import LoopConfig
-from slam.data.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
 from slam.frontend.features import OrbExtractor
-from slam.frontend.loop_verification import KeyframeView, LoopVerifier, adjoint
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
+from slam.keyframe import KeyframeView
+from slam.loops.verification import LoopVerifier, adjoint
+from slam.synthetic.generator import SynthConfig, build_scene, make_trajectory, render_frame
 
 CFG = SynthConfig.half_resolution(frames=300)
 

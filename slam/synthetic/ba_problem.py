@@ -15,8 +15,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from slam.backend.bundle_adjustment import BAProblem
-from slam.frontend.features import SCALE_FACTOR
 from slam.geometry import exp_se3, inv_T, make_T
+from slam.keyframe import SCALE_FACTOR
 
 K_VGA = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
 ROOM = np.array([[-2.5, -2.0, 0.0], [2.5, 2.0, 2.6]])

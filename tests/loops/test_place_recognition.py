@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from slam.frontend.place_recognition import KeyframeDatabase, kmajority
+from slam.loops.place_recognition import KeyframeDatabase, kmajority
 
 
 def noisy_copy(desc, rng, bits=20):

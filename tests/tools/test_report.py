@@ -1,4 +1,4 @@
-"""Tests of slam.report and `slam report`: files written, numbers in report.md, missing inputs."""
+"""Tests of slam.tools.report and `slam report`: files written, numbers in report.md, missing inputs."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from slam import eval as slam_eval
 from slam.cli import app
 from slam.errors import SlamError, TrajectoryError
-from slam.report import (
+from slam.tools import eval as slam_eval
+from slam.tools.report import (
     ERROR_PNG,
     TIMING_PNG,
     TOPVIEW_PNG,
@@ -269,7 +269,7 @@ def test_report_on_7scenes_ground_truth(tmp_path):
 
 
 def test_rejection_reasons_show_values():
-    from slam.report import rejection_reasons
+    from slam.tools.report import rejection_reasons
 
     cands = [{"reason": f"{n} RANSAC inliers < 25"} for n in (6, 23, 12, 23)]
     cands += [{"reason": "ICP fitness 0.27 < 0.3"}, {"reason": "overlap 0.41 < 0.5"}]

@@ -22,22 +22,12 @@ import numpy as np
 
 from slam.backend.pose_graph import Edge, PoseGraph
 from slam.config import BackendConfig, LoopConfig
-from slam.frontend.loop_verification import (
-    KeyframeView,
-    LoopVerifier,
-    Verification,
-    registration_information,
-)
-from slam.frontend.place_recognition import KeyframeDatabase
-from slam.frontend.tracker import Keyframe
-from slam.geometry import exp_se3, inv_T, log_se3, rotation_angle_deg, translation_norm
+from slam.geometry import inv_T, rotation_angle_deg, translation_norm
+from slam.keyframe import Keyframe
+from slam.loops.place_recognition import KeyframeDatabase
+from slam.loops.verification import LoopVerifier, Verification, registration_information
 
 log = logging.getLogger(__name__)
-
-
-def _view(kf: Keyframe) -> KeyframeView:
-    assert kf.depth_m is not None and kf.K is not None
-    return KeyframeView(kf.features, kf.depth_m, kf.K)
 
 
 @dataclass
@@ -70,9 +60,7 @@ class LoopCloser:
     optimisations: int = 0
     segment_parent: dict[int, int] = field(default_factory=dict)  # union-find of joined segments
     joins: list[dict[str, Any]] = field(default_factory=list)
-    _pending_joins: list[tuple[Keyframe, Keyframe, Verification, int]] = field(
-        default_factory=list
-    )
+    _pending_joins: list[tuple[Keyframe, Keyframe, Verification, int]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.graph = PoseGraph(self.backend_cfg)
@@ -119,9 +107,7 @@ class LoopCloser:
     def _same_map(self, a: Keyframe, b: Keyframe) -> bool:
         return self.segment_root(a.segment) == self.segment_root(b.segment)
 
-    def add_keyframe(
-        self, kf: Keyframe, link: KeyframeLink | None = None
-    ) -> list[dict[str, Any]]:
+    def add_keyframe(self, kf: Keyframe, link: KeyframeLink | None = None) -> list[dict[str, Any]]:
         """Add a keyframe (odometry pose in ``kf.T_world_cam``): graph node and its edge (from
         the previous keyframe by odometry, or as ``link`` says), then revisit detection.
         Returns the loop records of this keyframe."""
@@ -159,7 +145,7 @@ class LoopCloser:
         joining = []
         for cand_id, score in candidates:
             cand = self.keyframes[cand_id]
-            ver = self.verifier.verify(_view(kf), _view(cand))
+            ver = self.verifier.verify(kf.view(), cand.view())
             same_map = self._same_map(cand, kf)
             if ver.accepted and same_map:
                 self._check_consistency(cand, kf, ver)
@@ -380,44 +366,3 @@ class LoopCloser:
             (keyframes[c], keyframes[k], v, tag) for c, k, v, tag in state["pending_joins"]
         ]
         self.verifier._rng.bit_generator.state = state["verifier_rng"]
-
-
-def elastic_correction(
-    odometry: np.ndarray,
-    kf_positions: list[int],
-    T_world_kf_odometry: list[np.ndarray],
-    T_world_kf_corrected: list[np.ndarray],
-    runs: np.ndarray | None = None,
-) -> np.ndarray:
-    """Corrected poses of every frame from the corrected keyframe poses.
-
-    ``odometry`` (N, 4, 4): frontend poses of all frames; ``kf_positions``: the row of each
-    keyframe in ``odometry`` (increasing). A frame between keyframes a and b keeps its odometry
-    pose relative to each of them, giving two estimates ``T_a' T_a^-1 T`` and ``T_b' T_b^-1 T``;
-    it takes their SE(3) interpolation at its fraction of the way from a to b, so the
-    trajectory bends smoothly and keyframes land exactly on their optimised poses.
-
-    ``runs`` (N,): the tracking run of each frame (a run ends where tracking was lost). Frames
-    follow keyframes of their own run only: odometry says nothing across a loss. Every run
-    starts with a keyframe.
-    """
-    out = odometry.copy()
-    if not kf_positions:
-        return out
-    runs = np.zeros(len(odometry), int) if runs is None else np.asarray(runs)
-    corr = [Tc @ inv_T(To) for Tc, To in zip(T_world_kf_corrected, T_world_kf_odometry)]
-    n = len(odometry)
-    for f in range(0, kf_positions[0]):
-        out[f] = corr[0] @ odometry[f]
-    for k, a in enumerate(kf_positions):
-        nxt = kf_positions[k + 1] if k + 1 < len(kf_positions) else n
-        same_run = k + 1 < len(kf_positions) and runs[nxt] == runs[a]
-        for f in range(a, nxt):
-            Ta = corr[k] @ odometry[f]
-            if not same_run:
-                out[f] = Ta
-                continue
-            Tb = corr[k + 1] @ odometry[f]
-            s = (f - a) / (nxt - a)
-            out[f] = Ta @ exp_se3(s * log_se3(inv_T(Ta) @ Tb))
-    return out

@@ -10,11 +10,11 @@ import open3d as o3d
 import pytest
 
 import slam
-from slam import eval as slam_eval
-from slam.backend.loop_closure import elastic_correction
+from slam.backend.finalise import elastic_correction
 from slam.config import config_from_dict
-from slam.data.synthetic import SynthConfig, generate_sequence
 from slam.geometry import exp_se3, inv_T
+from slam.synthetic.generator import SynthConfig, generate_sequence
+from slam.tools import eval as slam_eval
 from slam.trajectory import Trajectory
 
 # ICP at full 320x240 resolution: the same pixel count as the default 640x480 / 2

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from slam.errors import SlamError
-from slam.frontend.tracker import TrackingStatus
+from slam.records import TrackingStatus
 from slam.trajectory import Trajectory, read_tum
 
 if TYPE_CHECKING:
@@ -253,7 +253,7 @@ class RerunRecorder:
     ) -> None:
         """Log the run's result one frame after the last: the corrected trajectory, the
         accepted loops and keyframes on it, the mesh and a summary line."""
-        from slam.report import loop_edges
+        from slam.tools.report import loop_edges
 
         rr, rec = self.rr, self.rec
         index, t = self._last if self._last is not None else (0, 0.0)
@@ -372,8 +372,8 @@ def record_run_folder(
     ``loops.json`` (as finally decided), then ``trajectory.txt`` and ``mesh.ply``. Images are
     read from the sequence named in ``config.yaml`` when it is there (else none are logged).
     ``out``: default ``RUN_DIR/recording.rrd``. Returns the file written."""
-    from slam.eval import _read_run_config
     from slam.run_folder import require_complete
+    from slam.tools.eval import _read_run_config
 
     run_dir = require_complete(run_dir)
     out = Path(out) if out is not None else run_dir / RECORDING_FILE

@@ -1,4 +1,4 @@
-"""Tests of slam.eval: numbers must equal evo's (CLI and Python API) to 1e-9 relative."""
+"""Tests of slam.tools.eval: numbers must equal evo's (CLI and Python API) to 1e-9 relative."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from evo.tools import file_interface
 from scipy.spatial.transform import Rotation
 
 from slam.errors import TrajectoryError
-from slam.eval import (
+from slam.tools.eval import (
     Stats,
     align_trajectory,
     ape_per_pose,
@@ -37,7 +37,7 @@ from slam.trajectory import Trajectory, read_tum, write_tum
 
 RTOL = 1e-9
 STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
-DATASETS = Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
+DATASETS = Path(__file__).resolve().parents[2].parent / "shared" / "datasets"
 SEVEN_SCENES_GT = DATASETS / "7scenes-1000" / "groundtruth.txt"
 
 
@@ -517,7 +517,7 @@ def test_rpe_seconds_matches_evo_on_selected_pairs(files, delta):
 
 
 def test_parse_delta():
-    from slam.eval import parse_delta
+    from slam.tools.eval import parse_delta
 
     assert parse_delta("1f") == (1.0, "frames")
     assert parse_delta("10 frames") == (10.0, "frames")

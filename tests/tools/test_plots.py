@@ -1,8 +1,8 @@
-"""The trajectory plot's choice of plane (slam.plots)."""
+"""The trajectory plot's choice of plane (slam.tools.plots)."""
 
 import numpy as np
 
-from slam.plots import plot_plane
+from slam.tools.plots import plot_plane
 
 
 def test_plot_plane_choice():
@@ -25,4 +25,3 @@ def test_plot_plane_choice():
     assert pl.u_label == "x" and pl.v_label == "0.71 y + 0.71 z"
     u, v = pl.project(pts)
     np.testing.assert_allclose(np.hypot(u, v), np.linalg.norm(pts, axis=1), atol=1e-9)
-

@@ -1,5 +1,5 @@
 """Trajectory metrics (ATE / RPE) with numbers identical to evo's; the trajectory plot is in
-:mod:`slam.plots` (:func:`plot_trajectories` and :func:`save_figure` are re-exported here).
+:mod:`slam.tools.plots` (:func:`plot_trajectories` and :func:`save_figure` are re-exported here).
 
 Everything numeric is delegated to evo's library so that the values match the ``evo_ape`` /
 ``evo_rpe`` command line tools exactly:
@@ -38,7 +38,7 @@ from evo.core.metrics import PoseRelation, Unit
 from evo.core.trajectory import PoseTrajectory3D
 
 from slam.errors import TrajectoryError
-from slam.plots import PlotPlane, plot_plane, plot_trajectories, save_figure
+from slam.tools.plots import PlotPlane, plot_plane, plot_trajectories, save_figure
 from slam.trajectory import Trajectory, read_tum
 
 logger = logging.getLogger(__name__)

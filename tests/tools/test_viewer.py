@@ -121,7 +121,7 @@ def test_view_refuses_an_incomplete_run_and_missing_rerun(tmp_path, monkeypatch)
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_rerun)
-    from slam.viewer import RerunRecorder
+    from slam.tools.viewer import RerunRecorder
 
     with pytest.raises(SlamError, match=r"rgbd-slam\[viz\]"):
         RerunRecorder(tmp_path / "x.rrd")

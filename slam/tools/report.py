@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from slam import eval as slam_eval
 from slam.errors import SlamError
-from slam.plots import plot_error, plot_timing
+from slam.tools import eval as slam_eval
+from slam.tools.plots import plot_error, plot_timing
 from slam.trajectory import Trajectory, atomic_write_text, read_tum
 
 logger = logging.getLogger(__name__)
@@ -420,7 +420,7 @@ def write_report(
     rpe_deltas: tuple = ("1f", "1s", "1m"),
 ) -> Report:
     """Write ``report.md`` and the PNG plots of a run folder into ``out_dir`` (default: the run
-    folder). Ground truth as :func:`slam.eval.load_run_ground_truth` finds it (``gt_path`` wins);
+    folder). Ground truth as :func:`slam.tools.eval.load_run_ground_truth` finds it (``gt_path`` wins);
     a run without ground truth gets a report without the accuracy section and error plot."""
     run = load_run_folder(run_dir)
     out = Path(out_dir) if out_dir is not None else run.path

@@ -1,4 +1,4 @@
-"""Tests of slam.bench / `slam bench`: suites, the results table, failed runs, local vs Ray."""
+"""Tests of slam.tools.bench / `slam bench`: suites, the results table, failed runs, local vs Ray."""
 
 from __future__ import annotations
 
@@ -11,11 +11,18 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from slam.bench import ACCURACY_COLUMNS, COLUMNS, load_suite, make_jobs, run_suite, suite_from_dict
 from slam.cli import app
 from slam.config import config_from_dict
 from slam.errors import ConfigError, SlamError
-from slam.eval import evaluate_run
+from slam.tools.bench import (
+    ACCURACY_COLUMNS,
+    COLUMNS,
+    load_suite,
+    make_jobs,
+    run_suite,
+    suite_from_dict,
+)
+from slam.tools.eval import evaluate_run
 from tests.conftest import SHARED_DATASETS
 
 runner = CliRunner()
@@ -25,7 +32,7 @@ BAD = {"tracking": {"no_such_key": 1}}
 
 
 def _tiny_synthetic(path: Path) -> Path:
-    from slam.data.synthetic import SynthConfig, generate_sequence
+    from slam.synthetic.generator import SynthConfig, generate_sequence
 
     cfg = SynthConfig.half_resolution(frames=300, render_frames=10)
     return generate_sequence(path, cfg)
@@ -270,7 +277,7 @@ def test_bench_cli_failed_runs_exit_code(tmp_path):
 
 
 def test_example_suite_parses():
-    suite = load_suite(Path(__file__).resolve().parents[1] / "scripts" / "bench_suite_example.yaml")
+    suite = load_suite(Path(__file__).resolve().parents[2] / "scripts" / "bench_suite_example.yaml")
     assert [s.name for s in suite.sequences] == ["demo", "7scenes-1000", "cabinet"]
     assert list(suite.configs) == ["default", "voxel_2cm", "no_frame_to_frame"]
     assert suite.sequences[2].max_frames == 58 and suite.max_frames == 300

@@ -4,7 +4,7 @@ Real recordings have gaps, jumps, blank and corrupt frames. :func:`damage_sequen
 of a sequence with such defects made on purpose, and with ground truth for the frames it keeps,
 so the pipeline's behaviour on them can be measured against the clean run::
 
-    from slam.data.damage import Damage, damage_sequence
+    from slam.synthetic.damage import Damage, damage_sequence
     damage_sequence("data/room", "data/room-blackout", Damage(blackout=range(100, 115)))
     damage_sequence("data/room", "data/room-teleport",
                     Damage(frames=[*range(250), *range(50, 300)], retime=True))
@@ -140,15 +140,13 @@ def damage_sequence(src: str | Path, dst: str | Path, damage: Damage) -> Path:
         depth_lines.append(f"{t} {depth_dst.relative_to(dst)}\n")
         if rgb_dst is not None:
             rgb_lines.append(f"{t} {rgb_dst.relative_to(dst)}\n")
-    header = f"# damaged copy of {Path(src).resolve()} (slam.data.damage)\n"
+    header = f"# damaged copy of {Path(src).resolve()} (slam.synthetic.damage)\n"
     atomic_write_text(dst / "depth.txt", header + "".join(depth_lines))
     if rgb_lines:
         atomic_write_text(dst / "rgb.txt", header + "".join(rgb_lines))
     scale = calib.depth_scale * damage.depth_scale_factor
     values = {**calib.to_dict(), "depth_scale": scale}
-    atomic_write_text(
-        dst / "calibration.yaml", "".join(f"{k}: {v!r}\n" for k, v in values.items())
-    )
+    atomic_write_text(dst / "calibration.yaml", "".join(f"{k}: {v!r}\n" for k, v in values.items()))
     gt = seq.ground_truth
     if gt is not None and len(gt):
         at = {round(float(t), 6): T for t, T in zip(gt.timestamps, gt.poses)}
