@@ -149,6 +149,11 @@ class LoopConfig:
     overlap_threshold_m: float = 0.03
     max_icp_correction_m: float = 0.15  # ICP moving the RANSAC pose more is a failure
     max_icp_correction_deg: float = 10.0
+    # ICP between two keyframes' depth images (verification, relocalisation): correspondences
+    # farther apart are rejected, residuals past huber_delta weigh less (keyframes are farther
+    # apart than consecutive frames, so wider than tracking's)
+    icp_max_correspondence_m: float = 0.07
+    icp_huber_delta_m: float = 0.05
     # the loop's relative pose must agree with the current estimate within a tolerance that
     # grows with the path travelled between the two keyframes (odometry drift is bounded)
     consistency_m: float = 0.2
@@ -166,6 +171,9 @@ class BackendConfig:
     # edge information = per-correspondence J^T J of the registration (its shape) / sigma^2
     odometry_sigma_m: float = 0.003  # floor of an odometry edge's sigma
     odometry_drift_per_m: float = 0.03  # odometry edge sigma grows with the motion it spans
+    # the odometry edge's information (its shape) is measured on the two keyframes' depth
+    # with correspondences closer than this
+    odometry_information_threshold_m: float = 0.03
     loop_sigma_m: float = 0.02
     loop_kernel: str = "cauchy"  # cauchy | huber | none
     loop_kernel_width: float = 2.0  # in standard deviations of the loop edge

@@ -24,6 +24,7 @@ from slam.errors import FrameReadError, SlamError
 from slam.mapping.tsdf import write_mesh
 from slam.records import TrackingStatus
 from slam.results import RunResult
+from slam.run_folder import submaps_dir
 from slam.run_folder.checkpoint import read_checkpoint, write_checkpoint
 from slam.system import FrameResult, Slam
 from slam.trajectory import Trajectory, as_written, atomic_write_text, write_tum
@@ -94,7 +95,7 @@ def run(
     system = Slam(
         cfg,
         has_color=sequence.has_color,
-        work_dir=None if run_dir is None else str(run_dir),
+        spill_dir=None if run_dir is None else str(submaps_dir(run_dir)),
         color_registered=registered,
     )
     start = 0
@@ -132,12 +133,12 @@ def run(
             checkpoint_ms += (time.perf_counter() - t1) * 1e3
     result = system.finish()
     m = result.metrics
-    m["sequence"] = str(sequence.path)
-    m["checkpoints"] = n_checkpoints
-    m["checkpoint_ms"] = round(checkpoint_ms, 1)
+    m.sequence = str(sequence.path)
+    m.checkpoints = n_checkpoints
+    m.checkpoint_ms = round(checkpoint_ms, 1)
     if resume:
-        m["resumed_at_frame"] = start
-    m["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+        m.resumed_at_frame = start
+    m.peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
     m.update(
         evaluate_against_ground_truth(
             sequence, result.trajectory, result.odometry, result.pose_graph
@@ -238,5 +239,5 @@ def save_run(result: RunResult, out_dir: str | Path) -> Path:
         atomic_write_text(
             out / "loops.json", json.dumps(result.loop_closer.loops_json(), indent=1) + "\n"
         )
-    atomic_write_text(out / "metrics.json", json.dumps(result.metrics, indent=2) + "\n")
+    atomic_write_text(out / "metrics.json", json.dumps(result.metrics.as_json(), indent=2) + "\n")
     return out

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from slam.records import RunMetrics
 from slam.trajectory import Trajectory
 
 if TYPE_CHECKING:
@@ -29,7 +30,7 @@ class RunResult:
     trajectory: Trajectory
     odometry: Trajectory
     mesh: o3d.geometry.TriangleMesh | None
-    metrics: dict[str, Any]
+    metrics: RunMetrics
     tracking: list[TrackingStatus] = field(default_factory=list)
     config: SlamConfig | None = None
     model: SubmapMap | None = None  # the submaps (odometry frame), for re-meshing and inspection

@@ -40,11 +40,11 @@ def test_state_dict_round_trip_continues_the_run(frames, tmp_path):
     whole = slam.Slam(cfg)
     for f in fr:
         whole.step(f)
-    first = slam.Slam(cfg, work_dir=str(tmp_path / "a"))
+    first = slam.Slam(cfg, spill_dir=str(tmp_path / "a"))
     for f in fr[:30]:
         first.step(f)
     state = pickle.loads(pickle.dumps(first.state_dict()))
-    second = slam.Slam(cfg, work_dir=str(tmp_path / "a"))
+    second = slam.Slam(cfg, spill_dir=str(tmp_path / "a"))
     second.load_state_dict(state)
     for f in fr[30:]:
         second.step(f)

@@ -3,9 +3,18 @@ frame bent onto them (:func:`elastic_correction`)."""
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
 from slam.geometry import exp_se3, inv_T, log_se3
+from slam.keyframe import Keyframe
+
+if TYPE_CHECKING:
+    from slam.backend.adjuster import BundleAdjuster
+    from slam.backend.pose_graph import PoseGraph
 
 
 def elastic_correction(
@@ -47,3 +56,79 @@ def elastic_correction(
             s = (f - a) / (nxt - a)
             out[f] = Ta @ exp_se3(s * log_se3(inv_T(Ta) @ Tb))
     return out
+
+
+@dataclass
+class FinalPoses:
+    """Every frame's pose three ways (N x 4 x 4, rows as the frame log's) and the keyframe
+    poses the final trajectory follows (the anchors of re-fusion)."""
+
+    odometry: np.ndarray  # the frontend's
+    pose_graph: np.ndarray  # following the pose graph's keyframes (before BA)
+    final: np.ndarray  # following the final keyframes (after BA)
+    T_world_kf: dict[int, np.ndarray]  # final keyframe poses by keyframe id
+    corrected: bool  # the final poses differ from the odometry
+    ba_ms: float | None = None  # the final bundle adjustment's time, when it ran
+
+
+def final_poses(
+    odometry: np.ndarray,
+    runs: np.ndarray,
+    kf_rows: list[int],
+    keyframes: list[Keyframe],
+    graph: PoseGraph,
+    adjuster: BundleAdjuster | None,
+    graph_adjusted: bool,
+    corrected: bool,
+) -> FinalPoses:
+    """The end-of-run solution. ``graph_adjusted``: a mid-run BA left its poses in the graph's
+    nodes, so the pose graph alone is solved again (the trajectory of the pose graph alone, and
+    where the final BA starts from). ``adjuster``: a final bundle adjustment from there (None:
+    none). ``corrected``: loops were closed or segments joined (the pose graph moved the
+    keyframes). Every frame then follows its keyframes (:func:`elastic_correction`)."""
+    if graph_adjusted:
+        graph.optimize()
+    pose_graph_kf = {kf.id: graph.nodes[kf.id] for kf in keyframes}
+    final_kf = dict(pose_graph_kf)
+    ba_ms = None
+    if adjuster is not None:
+        t0 = time.perf_counter()
+        res = adjuster.optimise(graph.nodes, graph.edges, reason="finish")
+        ba_ms = (time.perf_counter() - t0) * 1e3
+        final_kf.update(res.poses)
+
+    def follow(poses: dict[int, np.ndarray]) -> np.ndarray:
+        odo_kf = [kf.T_world_cam for kf in keyframes]
+        return elastic_correction(
+            odometry, kf_rows, odo_kf, [poses[kf.id] for kf in keyframes], runs
+        )
+
+    pose_graph_all = follow(pose_graph_kf) if corrected else odometry.copy()
+    adjusted = any(not np.array_equal(final_kf[k], pose_graph_kf[k]) for k in final_kf)
+    final_all = follow(final_kf) if adjusted else pose_graph_all
+    return FinalPoses(odometry, pose_graph_all, final_all, final_kf, corrected or adjusted, ba_ms)
+
+
+@dataclass
+class FinalMesh:
+    mesh: Any  # open3d TriangleMesh, or None when no mesh is made
+    map_blocks: int
+    reintegration_ms: float | None  # re-fusion of several submaps into one volume
+    meshing_ms: float
+
+
+def final_mesh(
+    model: Any, T_world_anchors: dict[int, np.ndarray] | None, include: set[int] | None
+) -> FinalMesh:
+    """Marching cubes on the global model: the submaps in ``include`` (None: all) under their
+    corrected anchor poses (``T_world_anchors`` by submap id; None: as fused). Several submaps
+    are first re-fused into one volume (:meth:`slam.mapping.submaps.SubmapMap.rebuild`)."""
+    t0 = time.perf_counter()
+    chosen = [sm for sm in model.submaps if include is None or sm.id in include]
+    if len(chosen) > 1:
+        volume = model.rebuild(T_world_anchors, include)
+        t1 = time.perf_counter()
+        mesh = volume.extract_mesh()
+        return FinalMesh(mesh, volume.n_blocks, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3)
+    mesh = model.extract_mesh(T_world_anchors, include)
+    return FinalMesh(mesh, model.n_blocks, None, (time.perf_counter() - t0) * 1e3)

@@ -86,8 +86,9 @@ class Tracker:
     """Estimates ``T_world_cam`` of each new frame against the TSDF model."""
 
     def __init__(
-        self, cfg: TrackingConfig, use_color: bool = True, color_registered: bool = True
+        self, cfg: TrackingConfig, has_color: bool = True, color_registered: bool = True
     ) -> None:
+        use_color = has_color
         if cfg.downsample not in (1, 2, 4):
             raise ConfigError(f"tracking.downsample must be 1, 2 or 4, got {cfg.downsample}")
         self.cfg = cfg
@@ -149,7 +150,64 @@ class Tracker:
         """ORB features of the frame lifted by its depth (None without colour)."""
         return self._features(frame)
 
+    def prepare(self, frame: Frame):
+        from slam.frontend.frame import PreparedFrame
+
+        return PreparedFrame(frame, self)
+
+    def lost_status(self, prepared, reason: str, gap: bool = False) -> TrackingStatus:
+        f = prepared.frame
+        return TrackingStatus(f.index, "lost", False, f.timestamp, reason=reason, gap=gap)
+
+    def state_dict(self):
+        st = self.state
+        prev = st.prev_features
+        return {
+            "T_world_prev": st.T_world_prev,
+            "velocity": st.velocity,
+            "prev_depth": st.prev_depth,
+            "prev_features": None if prev is None else prev.to_state(),
+            "rng": self._rng.bit_generator.state,
+            "recent_overlaps": list(st.recent_overlaps),
+            "keyframes": [kf.id for kf in st.keyframes],
+        }
+
+    def load_state_dict(self, t, by_id):
+        st = self.state
+        st.keyframes = [by_id[i] for i in t["keyframes"]]
+        st.T_world_prev = t["T_world_prev"]
+        st.velocity = t["velocity"]
+        st.prev_depth = t["prev_depth"]
+        st.prev_pyramid = (
+            None
+            if st.prev_depth is None
+            else depth_pyramid(st.prev_depth, len(self.cfg.iterations))
+        )
+        st.prev_features = (
+            None if t["prev_features"] is None else Keyframe.from_state(t["prev_features"])
+        )
+        self._rng.bit_generator.state = t["rng"]
+        st.recent_overlaps = list(t["recent_overlaps"])
+
     def reset(
+        self,
+        prepared,
+        T_world_cam: np.ndarray,
+        path: str = "init",
+        segment: int = 0,
+        evidence=None,
+    ) -> TrackingStatus:
+        frame = prepared.frame
+        depth = prepared.depth
+        feats = prepared.features
+        status = self._reset(frame, T_world_cam, path, segment, depth, feats)
+        if evidence is not None:
+            status.overlap = round(evidence.overlap, 4)
+            status.icp_fitness = evidence.icp_fitness
+            status.ransac_inliers = evidence.inliers
+        return status
+
+    def _reset(
         self,
         frame: Frame,
         T_world_cam: np.ndarray,
@@ -192,7 +250,10 @@ class Tracker:
         st.prev_rgbd = None
         st.prev_features = None
 
-    def track(
+    def track(self, prepared, model, verify=False, dt_ratio=1.0, segment=0):
+        return self._track(prepared.frame, model, verify, dt_ratio, segment)
+
+    def _track(
         self,
         frame: Frame,
         model: TSDFVolume,

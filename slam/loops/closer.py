@@ -15,7 +15,9 @@ from __future__ import annotations
 import copy
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -26,6 +28,7 @@ from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import Keyframe
 from slam.loops.place_recognition import KeyframeDatabase
 from slam.loops.verification import LoopVerifier, Verification, registration_information
+from slam.records import LoopRecord
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +56,7 @@ class LoopCloser:
     database: KeyframeDatabase = field(init=False)
     keyframes: list[Keyframe] = field(default_factory=list)
     path_length_m: list[float] = field(default_factory=list)  # along the keyframe chain
-    records: list[dict[str, Any]] = field(default_factory=list)
+    records: list[LoopRecord] = field(default_factory=list)
     ms: dict[str, float] = field(
         default_factory=lambda: {"loop_detection": 0.0, "optimisation": 0.0, "graph": 0.0}
     )
@@ -71,11 +74,20 @@ class LoopCloser:
 
     @property
     def loops_accepted(self) -> int:
-        return sum(r["accepted"] for r in self.records)
+        return sum(r.accepted for r in self.records)
 
     @property
     def loops_rejected(self) -> int:
-        return sum(not r["accepted"] for r in self.records)
+        return sum(not r.accepted for r in self.records)
+
+    def keyframe_poses(self) -> Mapping[int, np.ndarray]:
+        """The current (corrected) keyframe poses by id: a read-only view of the graph's."""
+        return MappingProxyType(self.graph.nodes)
+
+    def adopt_poses(self, poses: Mapping[int, np.ndarray]) -> None:
+        """Take keyframe poses solved elsewhere (bundle adjustment) as the current estimate:
+        later loop checks and track matching start from them."""
+        self.graph.nodes.update(poses)
 
     def T_world_kf(self, kf_id: int) -> np.ndarray:
         """Current (corrected) estimate of a keyframe's pose."""
@@ -90,7 +102,12 @@ class LoopCloser:
         if kf.depth_m is None or prev.depth_m is None or kf.K is None:
             return np.eye(6) / sigma**2
         info, n = registration_information(
-            kf.depth_m, prev.depth_m, kf.K, T_prev_kf, 0.03, self.depth_max_m
+            kf.depth_m,
+            prev.depth_m,
+            kf.K,
+            T_prev_kf,
+            c.odometry_information_threshold_m,
+            self.depth_max_m,
         )
         if n < 10:  # nothing overlaps: a weak isotropic edge keeps the chain connected
             return np.eye(6) / (10 * sigma) ** 2
@@ -104,7 +121,8 @@ class LoopCloser:
             segment = self.segment_parent[segment]
         return segment
 
-    def _same_map(self, a: Keyframe, b: Keyframe) -> bool:
+    def same_map(self, a: Keyframe, b: Keyframe) -> bool:
+        """Whether two keyframes lie in one map component (their segments are joined)."""
         return self.segment_root(a.segment) == self.segment_root(b.segment)
 
     def add_keyframe(self, kf: Keyframe, link: KeyframeLink | None = None) -> list[dict[str, Any]]:
@@ -134,7 +152,7 @@ class LoopCloser:
         self.keyframes.append(kf)
         self.ms["graph"] += (time.perf_counter() - t0) * 1e3
 
-        records: list[dict[str, Any]] = []
+        records: list[LoopRecord] = []
         cfg = self.loop_cfg
         if not cfg.enabled or len(kf.features) == 0 or kf.depth_m is None:
             return records
@@ -146,7 +164,7 @@ class LoopCloser:
         for cand_id, score in candidates:
             cand = self.keyframes[cand_id]
             ver = self.verifier.verify(kf.view(), cand.view())
-            same_map = self._same_map(cand, kf)
+            same_map = self.same_map(cand, kf)
             if ver.accepted and same_map:
                 self._check_consistency(cand, kf, ver)
             elif ver.accepted:
@@ -156,16 +174,7 @@ class LoopCloser:
                     f"{self.loop_cfg.join_verifications} agreeing revisits to join them"
                 )
                 joining.append((cand, ver))
-            rec = {
-                "query_kf": kf.id,
-                "match_kf": cand.id,
-                "query_frame": kf.index,
-                "match_frame": cand.index,
-                "query_timestamp": kf.timestamp,
-                "match_timestamp": cand.timestamp,
-                "score": round(score, 4),
-                **ver.summary(),
-            }
+            rec = ver.record(kf, cand, score)
             records.append(rec)
             log.log(
                 logging.INFO if ver.accepted else logging.DEBUG,
@@ -196,7 +205,7 @@ class LoopCloser:
                 tag = (
                     len(self.records)
                     - len(records)
-                    + next(k for k, r in enumerate(records) if r["match_kf"] == cand.id)
+                    + next(k for k, r in enumerate(records) if r.match_kf == cand.id)
                 )
                 self.add_loop(cand.id, kf.id, ver.T_candidate_query, ver.information / s**2, tag)
         if accepted or joined:
@@ -208,7 +217,7 @@ class LoopCloser:
         transform that puts one into the other's frame. Returns True when segments joined."""
         c = self.loop_cfg
         pending = [
-            p for p in self._pending_joins if not self._same_map(p[0], p[1])
+            p for p in self._pending_joins if not self.same_map(p[0], p[1])
         ]  # pairs whose segments were joined meanwhile are dropped
         self._pending_joins = pending
         for a_root, b_root in {
@@ -253,10 +262,10 @@ class LoopCloser:
         for cand, kf, ver, tag in evidence:
             self.add_loop(cand.id, kf.id, ver.T_candidate_query, ver.information / s**2, tag)
             if 0 <= tag < len(self.records):
-                self.records[tag]["accepted"] = True
-                self.records[tag]["reason"] = (
-                    f"accepted: joins map segment {kf.segment} to segment {cand.segment}"
-                )
+                self.records[tag].accepted = True
+                self.records[
+                    tag
+                ].reason = f"accepted: joins map segment {kf.segment} to segment {cand.segment}"
         self.joins.append(
             {
                 "segment": b_root,
@@ -265,7 +274,7 @@ class LoopCloser:
                 "revisits": len(evidence),
             }
         )
-        self._pending_joins = [p for p in self._pending_joins if not self._same_map(p[0], p[1])]
+        self._pending_joins = [p for p in self._pending_joins if not self.same_map(p[0], p[1])]
         log.info(
             "map segment %d joined to segment %d by %d agreeing revisits",
             b_root,
@@ -322,14 +331,15 @@ class LoopCloser:
             )
             if 0 <= edge.tag < len(self.records):
                 rec = self.records[edge.tag]
-                rec["accepted"] = False
-                rec["reason"] = (
+                rec.accepted = False
+                rec.reason = (
                     f"rejected by the pose graph: residual {r:.1f} sigma after optimisation "
                     f"(max {thr})"
                 )
 
     def loops_json(self) -> dict[str, Any]:
-        return {"candidates": self.records}
+        """The ``loops.json`` object: every verified candidate, in order."""
+        return {"candidates": [r.as_json() for r in self.records]}
 
     # --- checkpoints
     def state_dict(self) -> dict[str, Any]:

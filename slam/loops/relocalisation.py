@@ -111,14 +111,22 @@ class Relocaliser:
         recent = list(reversed(keyframes[-self.recent_keyframes :]))
         for tried, kf in enumerate(recent, 1):
             init = inv_T(kf.T_world_cam) @ T_world_last
+            c = self.verifier.cfg  # the checks of loop verification, on depth alone
             icp = projective_icp(
-                view.depth_m, kf.depth_m, view.K, init, ICP_ITERATIONS, self.depth_max_m, 0.07, 0.05
+                view.depth_m,
+                kf.depth_m,
+                view.K,
+                init,
+                ICP_ITERATIONS,
+                self.depth_max_m,
+                c.icp_max_correspondence_m,
+                c.icp_huber_delta_m,
             )
             T = icp.T_target_source
-            overlap = projective_overlap(view.depth_m, kf.depth_m, view.K, T, 0.03)
+            overlap = projective_overlap(view.depth_m, kf.depth_m, view.K, T, c.overlap_threshold_m)
             if overlap >= self.depth_only_overlap:
                 info, _ = registration_information(
-                    view.depth_m, kf.depth_m, view.K, T, 0.03, self.depth_max_m
+                    view.depth_m, kf.depth_m, view.K, T, c.overlap_threshold_m, self.depth_max_m
                 )
                 ver = Verification(
                     True,

@@ -20,7 +20,8 @@ from slam.frontend.features import match_descriptors
 from slam.frontend.icp import projective_icp, projective_overlap
 from slam.frontend.ransac import ransac_rigid
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
-from slam.keyframe import KeyframeView
+from slam.keyframe import Keyframe, KeyframeView
+from slam.records import LoopRecord
 
 log = logging.getLogger(__name__)
 
@@ -44,17 +45,26 @@ class Verification:
     T_candidate_query: np.ndarray = field(default_factory=lambda: np.eye(4))
     information: np.ndarray = field(default_factory=lambda: np.eye(6))
 
-    def summary(self) -> dict:
-        return {
-            "accepted": self.accepted,
-            "reason": self.reason,
-            "matches": self.matches,
-            "inliers": self.inliers,
-            "inlier_ratio": round(self.inlier_ratio, 4),
-            "icp_fitness": round(self.icp_fitness, 4),
-            "overlap": round(self.overlap, 4),
-            "T_match_query": np.round(self.T_candidate_query, 9).tolist(),
-        }
+    def record(self, query: Keyframe, match: Keyframe, score: float) -> LoopRecord:
+        """This outcome as the loop record of ``query`` against ``match`` (retrieval score
+        ``score``)."""
+        return LoopRecord(
+            query.id,
+            match.id,
+            query.index,
+            match.index,
+            query.timestamp,
+            match.timestamp,
+            score,
+            self.accepted,
+            self.reason,
+            self.matches,
+            self.inliers,
+            self.inlier_ratio,
+            self.icp_fitness,
+            self.overlap,
+            self.T_candidate_query.copy(),
+        )
 
 
 def adjoint(T: np.ndarray) -> np.ndarray:
@@ -133,8 +143,8 @@ class LoopVerifier:
             rs.T,
             ICP_ITERATIONS,
             self.depth_max_m,
-            max_correspondence_m=0.07,
-            huber_delta_m=0.05,
+            max_correspondence_m=cfg.icp_max_correspondence_m,
+            huber_delta_m=cfg.icp_huber_delta_m,
         )
         T = icp.T_target_source
         out.icp_fitness = float(icp.fitness)

@@ -103,6 +103,11 @@ def require_complete(run_dir: str | Path) -> Path:
     return run_dir
 
 
+def submaps_dir(run_dir: str | Path) -> Path:
+    """Where a run's finished submaps wait on disk while it goes on (kept for resuming)."""
+    return Path(run_dir) / "submaps"
+
+
 def remove_work_dirs(run_dir: Path) -> None:
     """Remove checkpoints and spilled submaps once the run's results are written."""
     for name in WORK_DIRS:
