@@ -199,7 +199,7 @@ class RunMetrics:
         """Set fields from a dict of ``metrics.json`` keys (unknown keys are an error)."""
         for k, v in values.items():
             if k not in _FIELDS:
-                raise KeyError(f"{k!r} is not a metrics.json key (see slam.records.RunMetrics)")
+                raise KeyError(f"{k!r} is not a field of slam.records.RunMetrics")
             setattr(self, k, v)
 
     # read access as the JSON object

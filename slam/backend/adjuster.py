@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any
 
@@ -60,7 +59,6 @@ class BundleAdjuster:
         self.runs: list[dict[str, Any]] = []  # summary of each adjustment
         self.tracks_ms = 0.0  # time spent building and merging tracks
         self.last_run_keyframe = -1  # newest keyframe at the last adjustment
-        self._pool: ThreadPoolExecutor | None = None
 
     # --- what BA can do here
     @property
@@ -137,24 +135,7 @@ class BundleAdjuster:
         from the tracks. ``result.poses`` has every keyframe of ``poses``; when BA cannot run
         (see :attr:`skip_reason`, or no landmark seen twice) ``result.skipped`` says why and
         ``result.poses`` is empty."""
-        return self.collect(self._run(*self._snapshot(poses, edges, kf_ids), fixed), reason)
-
-    def submit(
-        self,
-        poses: Mapping[int, np.ndarray],
-        edges: Sequence[Edge] = (),
-        kf_ids: Iterable[int] | None = None,
-        fixed: Iterable[int] | None = None,
-    ) -> Future[BAResult]:
-        """:meth:`optimise` in a worker thread, off the caller's path: the problem and the
-        poses are copied now; GTSAM's optimiser releases the GIL, so tracking goes on at
-        nearly full speed meanwhile. Pass the future's result to :meth:`collect` (on the
-        caller's thread) to remove the outliers and record it. Keyframes added meanwhile are
-        not in the result: move them with their predecessor's correction."""
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam-ba")
-        snapshot = self._snapshot(poses, edges, kf_ids)
-        return self._pool.submit(self._run, *snapshot, fixed)
+        return self._record(self._run(*self._snapshot(poses, edges, kf_ids), fixed), reason)
 
     def _snapshot(
         self,
@@ -189,9 +170,9 @@ class BundleAdjuster:
             loop_kernel_width=self.loop_kernel_width,
         )
 
-    def collect(self, result: BAResult, reason: str = "global") -> BAResult:
+    def _record(self, result: BAResult, reason: str = "global") -> BAResult:
         """Record a finished adjustment and remove its outlier observations from the
-        tracks (done by :meth:`optimise`; call it for a :meth:`submit` future's result).
+        tracks.
         Its poses are dropped (reported as skipped; the pose graph stands) when it rests on
         fewer than ``ba.min_observations_per_keyframe`` inlier observations per keyframe, or
         did not lower the reprojection error (it should by construction; it would take a
@@ -221,12 +202,6 @@ class BundleAdjuster:
             self.last_run_keyframe = max(result.poses, default=self.last_run_keyframe)
         self.runs.append({"reason": reason, **result.summary()})
         return result
-
-    def close(self) -> None:
-        """Stop the worker thread of :meth:`submit` (if one was started)."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
 
     # --- reporting
     def summary(self) -> dict[str, Any]:
