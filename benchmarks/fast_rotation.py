@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from slam.data.calibration import TUM_DEFAULTS
-from slam.synthetic.generator import COLOR_NOISE_SIGMA, FPS, SynthConfig, build_scene, render_frame
+from slam.synthetic import COLOR_NOISE_SIGMA, FPS, SynthConfig, build_scene, render_frame
 from slam.trajectory import Trajectory, write_tum
 
 #: (start s, duration s, peak yaw rate deg/s, peak pitch rate deg/s) of each pan

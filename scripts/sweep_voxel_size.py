@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 
 import slam
-from slam.synthetic.generator import SynthConfig, generate_sequence
+from slam.synthetic import SynthConfig, generate_sequence
 from slam.tools import eval as slam_eval
 
 

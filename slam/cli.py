@@ -280,7 +280,7 @@ def synth(
     ] = 0.0,
 ) -> None:
     """Render a synthetic RGB-D sequence with exact ground truth (TUM layout + calibration.yaml)."""
-    from slam.synthetic.generator import SynthConfig, generate_sequence
+    from slam.synthetic import SynthConfig, generate_sequence
 
     _setup_logging()
     try:

@@ -7,7 +7,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from slam.synthetic.generator import SynthConfig, generate_sequence
+from slam.synthetic import SynthConfig, generate_sequence
 
 log = logging.getLogger(__name__)
 

@@ -80,7 +80,7 @@ def K_vga() -> np.ndarray:
 @pytest.fixture(scope="session")
 def synth_loop_320(tmp_path_factory) -> Path:
     """A 320x240 synthetic loop sequence (300 frames, exact ground truth), generated once."""
-    from slam.synthetic.generator import SynthConfig, generate_sequence
+    from slam.synthetic import SynthConfig, generate_sequence
 
     out = tmp_path_factory.mktemp("synth") / "loop320"
     cfg = SynthConfig.half_resolution(frames=300, loop=True, seed=1)
@@ -94,7 +94,7 @@ def recorded_run(tmp_path_factory) -> tuple[Path, Path]:
     pytest.importorskip("rerun", reason="rerun-sdk (the viz extra) is not installed")
     from slam.api import run_sequence
     from slam.config import config_from_dict
-    from slam.synthetic.generator import SynthConfig, generate_sequence
+    from slam.synthetic import SynthConfig, generate_sequence
 
     root = tmp_path_factory.mktemp("recorded")
     seq = generate_sequence(

@@ -74,7 +74,7 @@ def test_synth_writes_a_sequence(tmp_path):
 
 
 def test_run_writes_the_run_folder(tmp_path):
-    from slam.synthetic.generator import SynthConfig, generate_sequence
+    from slam.synthetic import SynthConfig, generate_sequence
 
     seq = generate_sequence(
         tmp_path / "seq",
@@ -105,7 +105,7 @@ def test_bad_config_is_a_clear_error(tmp_path):
 def test_run_with_calibration_from_the_config(tmp_path):
     """A sequence folder with no calibration.yaml and no freiburg in its name runs when the
     config gives the intrinsics in dataset.calibration, as the error message says."""
-    from slam.synthetic.generator import SynthConfig, generate_sequence
+    from slam.synthetic import SynthConfig, generate_sequence
 
     seq = generate_sequence(
         tmp_path / "mycam", SynthConfig.half_resolution(frames=300, render_frames=5)
@@ -129,7 +129,7 @@ def test_run_with_calibration_from_the_config(tmp_path):
 def test_console_is_quiet_by_default_verbose_and_quiet(tmp_path):
     """Default: the summary line, no INFO lines (a real run printed ~440: one per loop and
     graph update); -v: the per-event lines; -q: nothing at all."""
-    from slam.synthetic.generator import SynthConfig, generate_sequence
+    from slam.synthetic import SynthConfig, generate_sequence
 
     seq = generate_sequence(
         tmp_path / "seq", SynthConfig.half_resolution(frames=300, render_frames=6)
@@ -153,7 +153,7 @@ def test_demo_generation_is_its_own_step(tmp_path, monkeypatch):
     """`slam run` with no sequence generates the demo once, as a step of its own that says so
     (its progress bar used to sit at 0/? while the sequence was generated)."""
     from slam import demo
-    from slam.synthetic.generator import SynthConfig
+    from slam.synthetic import SynthConfig
 
     monkeypatch.setenv("SLAM_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setitem(

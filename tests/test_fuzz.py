@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import slam
-from slam.synthetic.generator import SynthConfig, generate_sequence
+from slam.synthetic import SynthConfig, generate_sequence
 
 pytestmark = pytest.mark.slow
 

@@ -1,4 +1,4 @@
-"""Dataset loaders: TUM RGB-D layout, 7-Scenes layout, and the built-in synthetic generator."""
+"""Dataset loaders: TUM RGB-D layout, 7-Scenes layout, (the synthetic generator is slam.synthetic)."""
 
 from slam.data.base import Calibration, Frame, Sequence
 from slam.data.loader import detect_layout, open_sequence

@@ -20,7 +20,7 @@ from slam.config import BAConfig
 from slam.frontend.features import OrbExtractor, match_descriptors
 from slam.geometry import exp_se3, inv_T
 from slam.keyframe import Keyframe
-from slam.synthetic.generator import SynthConfig, build_scene, make_trajectory, render_frame
+from slam.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
 
 STEP = 5  # frames between keyframes: 60 keyframes over the 300-frame loop
 

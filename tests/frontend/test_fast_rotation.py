@@ -12,7 +12,7 @@ from slam.data.images import Undistorter
 from slam.frontend.icp import projective_icp
 from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
-from slam.synthetic.generator import SynthConfig, build_scene, render_frame
+from slam.synthetic import SynthConfig, build_scene, render_frame
 from tests.conftest import look_at
 
 FR1 = TUM_DEFAULTS["freiburg1"]

@@ -13,7 +13,7 @@ import slam
 from slam.backend.finalise import elastic_correction
 from slam.config import config_from_dict
 from slam.geometry import exp_se3, inv_T
-from slam.synthetic.generator import SynthConfig, generate_sequence
+from slam.synthetic import SynthConfig, generate_sequence
 from slam.tools import eval as slam_eval
 from slam.trajectory import Trajectory
 

@@ -8,7 +8,7 @@ from slam.frontend.features import OrbExtractor
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import KeyframeView
 from slam.loops.verification import LoopVerifier, adjoint
-from slam.synthetic.generator import SynthConfig, build_scene, make_trajectory, render_frame
+from slam.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
 
 CFG = SynthConfig.half_resolution(frames=300)
 

@@ -13,8 +13,7 @@ import pytest
 import yaml
 
 from slam.geometry import inv_T, rotation_angle_deg
-from slam.synthetic import generator as synth
-from slam.synthetic.generator import (
+from slam.synthetic import (
     SynthConfig,
     alias_clusters,
     build_scene,
@@ -23,6 +22,8 @@ from slam.synthetic.generator import (
     make_trajectory,
     render_frame,
 )
+from slam.synthetic import config as synth_config
+from slam.synthetic import writer as synth
 from slam.trajectory import read_tum
 
 
@@ -171,7 +172,9 @@ def test_noise_model():
         assert valid.mean() > 0.5
         dropped = ((dc > 0) & ~valid).mean()
         assert 0.01 < dropped < 0.35
-        assert dn[valid].min() >= synth.MIN_DEPTH and dn[valid].max() <= synth.MAX_DEPTH
+        assert (
+            dn[valid].min() >= synth_config.MIN_DEPTH and dn[valid].max() <= synth_config.MAX_DEPTH
+        )
         both = valid & (dc > 0)
         err = dn[both] - dc[both]
         # axial sigma at ~1.5 m is ~3.5 mm (plus quantisation): errors of that order, unbiased

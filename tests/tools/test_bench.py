@@ -32,7 +32,7 @@ BAD = {"tracking": {"no_such_key": 1}}
 
 
 def _tiny_synthetic(path: Path) -> Path:
-    from slam.synthetic.generator import SynthConfig, generate_sequence
+    from slam.synthetic import SynthConfig, generate_sequence
 
     cfg = SynthConfig.half_resolution(frames=300, render_frames=10)
     return generate_sequence(path, cfg)

@@ -1,0 +1,71 @@
+"""The synthetic camera path: a smooth loop around the room looking at its furniture."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from slam.synthetic.config import FPS, SynthConfig
+from slam.trajectory import Trajectory
+
+log = logging.getLogger(__name__)
+
+
+log = logging.getLogger(__name__)
+
+# ------------------------------------------------------------------------------------------------
+# trajectory
+
+
+def _look_rotation(forward: np.ndarray, roll: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) camera-to-world rotations (OpenCV axes) looking along ``forward``, world z up."""
+    f = forward / np.linalg.norm(forward, axis=1, keepdims=True)
+    up = np.array([0.0, 0.0, 1.0])
+    right = np.cross(f, up)
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    down = np.cross(f, right)
+    R = np.stack([right, down, f], axis=2)  # columns: x right, y down, z forward
+    c, s = np.cos(roll), np.sin(roll)
+    Rroll = np.zeros((len(roll), 3, 3))
+    Rroll[:, 0, 0] = c
+    Rroll[:, 0, 1] = -s
+    Rroll[:, 1, 0] = s
+    Rroll[:, 1, 1] = c
+    Rroll[:, 2, 2] = 1.0
+    return R @ Rroll
+
+
+def make_trajectory(cfg: SynthConfig) -> Trajectory:
+    """Smooth hand-held-like camera path inside the room, ``T_world_cam``, timestamps ``i / 30``.
+
+    The camera circles an ellipse (semi-axes 0.8 x 0.6 m) around the room centre at ~1.35 m
+    height, looking outwards and ~20 deg down at the furniture along the walls, with sinusoidal
+    wobble of speed, height, yaw, pitch and roll (phases from the seed). ``loop=True``: one full
+    closed turn (infinitely smooth, the pose after the last frame is the first one again).
+    ``loop=False``: an open 0.55-turn sweep.
+    """
+    cfg.validate()
+    n = int(cfg.frames)
+    rng = np.random.default_rng([int(cfg.seed), 0x7A7])
+    ph = rng.uniform(0, 2 * np.pi, 8)
+    amp = rng.uniform(0.7, 1.0, 6)
+    turns = 1.0 if cfg.loop else 0.55
+    s = np.arange(n) / n * turns  # fraction of a full turn
+    th0 = rng.uniform(0, 2 * np.pi)  # starting angle on the ellipse
+    w = 2 * np.pi * s
+    theta = th0 + w + 0.10 * amp[0] * (np.sin(2 * w + ph[0]) - np.sin(ph[0]))
+    x = 0.8 * np.cos(theta) + 0.06 * amp[1] * np.sin(3 * w + ph[1])
+    y = 0.6 * np.sin(theta) + 0.06 * amp[2] * np.cos(2 * w + ph[2])
+    z = 1.35 + 0.08 * amp[3] * np.sin(2 * w + ph[3]) + 0.03 * np.sin(5 * w + ph[4])
+    yaw = theta + 0.15 * amp[4] * np.sin(2 * w + ph[5])
+    pitch = np.radians(-20.0 + 4.0 * amp[5] * np.sin(3 * w + ph[6]))
+    roll = np.radians(3.0 * np.sin(2 * w + ph[7]) + 1.0 * np.sin(5 * w + ph[0]))
+    forward = np.stack(
+        [np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)], axis=1
+    )
+    R = _look_rotation(forward, roll)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :3, :3] = R
+    poses[:, :3, 3] = np.stack([x, y, z], axis=1)
+    return Trajectory(np.arange(n) / FPS, poses)
