@@ -24,13 +24,8 @@ from pathlib import Path
 from common import ROOT, machine, run_in_child, sequence_path, write_result
 
 KEYS = (
-    "seconds",
-    "fps",
-    "fps_tracking_fusion",
-    "ate_rmse_m",
-    "ate_rmse_odometry_m",
-    "ate_rmse_pose_graph_m",
-    "frames",
+    "seconds", "fps", "fps_tracking_fusion", "ate_rmse_m", "ate_rmse_odometry_m",
+    "ate_rmse_pose_graph_m", "frames",
 )
 
 
@@ -61,7 +56,9 @@ def main() -> None:
         try:
             for i in range(args.repeats):
                 order = ["a", "b"] if i % 2 == 0 else ["b", "a"]
-                pair = {arm: run_in_child(path, arms[arm][1], KEYS, arms[arm][0]) for arm in order}
+                pair = {
+                    arm: run_in_child(path, arms[arm][1], KEYS, arms[arm][0]) for arm in order
+                }
                 pair["seconds_ratio"] = pair["b"]["seconds"] / pair["a"]["seconds"]
                 pair["fps_tf_ratio"] = (
                     pair["b"]["fps_tracking_fusion"] / pair["a"]["fps_tracking_fusion"]

@@ -57,7 +57,9 @@ print(json.dumps({k: m.get(k) for k in sys.argv[3].split(",")}))
 """
 
 
-def run_in_child(path: Path, config: str, keys: tuple[str, ...], tree: Path | None = None) -> dict:
+def run_in_child(
+    path: Path, config: str, keys: tuple[str, ...], tree: Path | None = None
+) -> dict:
     """One pipeline run (default config overridden by the YAML file ``config``, or none) in a
     fresh process, so runs do not share caches or memory; ``tree``: the source tree to import
     ``slam`` from (default this one). Returns the ``metrics.json`` values named by ``keys``."""

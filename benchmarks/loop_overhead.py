@@ -21,15 +21,8 @@ from common import machine, run_in_child, sequence_path, write_result
 NO_LOOP = "loop: {enabled: false}\nmapping: {submap_keyframes: 0}\n"
 
 KEYS = (
-    "seconds",
-    "fps",
-    "fps_tracking_fusion",
-    "ate_rmse_m",
-    "ate_rmse_odometry_m",
-    "loops_accepted",
-    "loops_rejected",
-    "submaps",
-    "stage_ms_total",
+    "seconds", "fps", "fps_tracking_fusion", "ate_rmse_m", "ate_rmse_odometry_m",
+    "loops_accepted", "loops_rejected", "submaps", "stage_ms_total",
 )
 
 

@@ -79,9 +79,7 @@ def test_cabinet_teleport_is_relocalised_not_tracked_wrong(tmp_path):
 
     src = shared_sequence("tum-fr3-cabinet-kf58")
     seq = slam.open_sequence(
-        damage_sequence(
-            src, tmp_path / "tp", Damage(frames=[*range(48), *range(10, 58)], retime=True)
-        )
+        damage_sequence(src, tmp_path / "tp", Damage(frames=[*range(48), *range(10, 58)], retime=True))
     )
     m = slam.run(seq).metrics
     assert m["relocalisations"] >= 1, m

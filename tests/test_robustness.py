@@ -36,9 +36,7 @@ def test_blackout_frames_are_lost_and_tracking_comes_back(synth_loop_320, tmp_pa
     _, res = run_damaged(synth_loop_320, tmp_path, Damage(blackout=blackout))
     m = res.metrics
     assert set(blackout) <= set(m["lost_frames"])
-    assert (
-        len(m["lost_frames"]) <= len(blackout) + slam.SlamConfig().tracking.new_segment_after_lost
-    )
+    assert len(m["lost_frames"]) <= len(blackout) + slam.SlamConfig().tracking.new_segment_after_lost
     assert not set(blackout) & set(np.round(res.trajectory.timestamps * 30).astype(int))
     assert len(m["map_segments"]) == 1  # one map in the end: relocalised or joined
     assert m["relocalisations"] + len(m["segment_joins"]) >= 1
@@ -80,7 +78,9 @@ def test_corrupt_frames_are_skipped(synth_loop_320, tmp_path, clean):
     assert m["ate_rmse_m"] <= bound(clean["ate_rmse_m"]), (m["ate_rmse_m"], clean["ate_rmse_m"])
 
 
-def test_jump_into_unmapped_space_starts_a_segment_joined_at_the_revisit(synth_loop_320, tmp_path):
+def test_jump_into_unmapped_space_starts_a_segment_joined_at_the_revisit(
+    synth_loop_320, tmp_path
+):
     """100 frames removed (a 1.2 m / 117 deg jump with a time gap): the view after the jump
     is nowhere in the map, so after a few lost frames a new map segment starts; when the loop
     comes back to the start, verified revisits join it to the first segment, and the whole
@@ -97,13 +97,9 @@ def test_jump_into_unmapped_space_starts_a_segment_joined_at_the_revisit(synth_l
     assert m["ate_rmse_odometry_m"] > 0.1
     assert m["ate_rmse_m"] < 0.015, m["ate_rmse_m"]  # measured 0.0068 m
     second = res.trajectory.timestamps >= seq.timestamp(110)
-    assert (
-        ate(
-            seq.ground_truth,
-            slam.Trajectory(res.trajectory.timestamps[second], res.trajectory.poses[second]),
-        ).rmse
-        < 0.02
-    )
+    assert ate(seq.ground_truth, slam.Trajectory(
+        res.trajectory.timestamps[second], res.trajectory.poses[second]
+    )).rmse < 0.02
 
 
 def test_gap_in_the_lists_is_verified_not_trusted(synth_loop_320, tmp_path):

@@ -120,7 +120,8 @@ def from_overrides(overrides: dict[str, Any] | None) -> Calibration | None:
     unknown = sorted(set(given) - set(KEYS + DISTORTION_KEYS))
     if unknown:
         raise CalibrationError(
-            f"unknown calibration override {unknown[0]!r}; expected one of {KEYS + DISTORTION_KEYS}"
+            f"unknown calibration override {unknown[0]!r}; expected one of "
+            f"{KEYS + DISTORTION_KEYS}"
         )
     try:
         return Calibration(

@@ -146,7 +146,9 @@ def damage_sequence(src: str | Path, dst: str | Path, damage: Damage) -> Path:
         atomic_write_text(dst / "rgb.txt", header + "".join(rgb_lines))
     scale = calib.depth_scale * damage.depth_scale_factor
     values = {**calib.to_dict(), "depth_scale": scale}
-    atomic_write_text(dst / "calibration.yaml", "".join(f"{k}: {v!r}\n" for k, v in values.items()))
+    atomic_write_text(
+        dst / "calibration.yaml", "".join(f"{k}: {v!r}\n" for k, v in values.items())
+    )
     gt = seq.ground_truth
     if gt is not None and len(gt):
         at = {round(float(t), 6): T for t, T in zip(gt.timestamps, gt.poses)}

@@ -34,9 +34,7 @@ def test_depth_size_against_calibration(tmp_path):
     root = _seq(tmp_path)
     cv2.imwrite(str(root / "depth/3.png"), np.full((24, 32), 5000, np.uint16))
     seq = slam.open_sequence(root)
-    with pytest.raises(
-        FrameSizeError, match="frame 3: depth image is 32x24 but the calibration says 64x48"
-    ):
+    with pytest.raises(FrameSizeError, match="frame 3: depth image is 32x24 but the calibration says 64x48"):
         seq[3]
     check_sequence(seq, list(range(len(seq))))  # a later frame: skipped by the run, not fatal
     cv2.imwrite(str(root / "depth/0.png"), np.full((24, 32), 5000, np.uint16))
@@ -55,10 +53,7 @@ def test_wrong_depth_scale_names_the_one_that_fits(tmp_path, factor, expected):
     if factor == 0.2:  # scale 1000: 5 m median, plausible: no error
         check_sequence(seq, list(range(len(seq))))
         return
-    with pytest.raises(
-        CalibrationError,
-        match=rf"depth_scale is likely wrong. depth_scale {expected} would give 1.00 m",
-    ):
+    with pytest.raises(CalibrationError, match=rf"depth_scale is likely wrong. depth_scale {expected} would give 1.00 m"):
         check_sequence(seq, list(range(len(seq))))
 
 

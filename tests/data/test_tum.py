@@ -119,6 +119,7 @@ def test_depth_only_sequence(tmp_path):
     assert not seq.color_registered  # no colour: nothing to register
 
 
+
 def _write_calib(root, text):
     (root / "calibration.yaml").write_text(text)
     return root
