@@ -318,73 +318,62 @@ def _components(problem: BAProblem, kf_ids: list[int], edges: Sequence[Edge]) ->
     return list(groups.values())
 
 
-def bundle_adjust(
-    problem: BAProblem,
-    poses: Mapping[int, np.ndarray],
-    cfg: BAConfig,
-    fixed: Iterable[int] | None = None,
-    edges: Sequence[Edge] = (),
-    edge_weight: float = 1.0,
-    loop_kernel_width: float = 2.0,
-) -> BAResult:
-    """Optimise the poses of the keyframes observed in ``problem`` (plus those joined by
-    ``edges``) and the landmark positions, starting from ``poses`` (``T_world_kf`` by id) and
-    landmarks initialised from depth (:func:`initial_points`).
+class _Solver:
+    """The factor graph of a bundle-adjustment problem and its Levenberg-Marquardt solve: one
+    stereo factor per observation with depth (a projection factor without), noise by ORB
+    pyramid level under a Huber kernel, the pose graph's ``edges`` (loops under a Cauchy
+    kernel), and a prior on the ``fixed`` keyframes (at least one per connected part: the
+    gauge)."""
 
-    ``fixed``: keyframes held at their starting pose (default: the first keyframe of each
-    connected part fixes the gauge). ``edges``: relative-pose edges (the pose graph's
-    :class:`~slam.backend.pose_graph.Edge`; loop edges get a Cauchy kernel of width
-    ``loop_kernel_width``) with information scaled by ``edge_weight``; only edges between
-    keyframes in ``poses`` are used.
-    """
-    t0 = time.perf_counter()
-    sigma = float(cfg.pixel_sigma_px)
-    missing = sorted({int(k) for k in np.unique(problem.kf)} - set(poses))
-    if missing:
-        raise BundleAdjustmentError(f"observations of keyframes {missing[:5]} without a pose")
-    if len(problem) == 0:
-        return BAResult(skipped="no landmark is observed by two keyframes", ms=_ms(t0))
-    edges = [e for e in edges if e.i in poses and e.j in poses and edge_weight > 0]
-    fixed = {int(k) for k in (fixed or ())}
+    def __init__(
+        self,
+        problem: BAProblem,
+        cfg: BAConfig,
+        fixed: set[int],
+        edges: list[Edge],
+        edge_weight: float,
+        loop_kernel_width: float,
+    ) -> None:
+        self.cfg, self.fixed, self.edges = cfg, fixed, edges
+        self.edge_weight, self.loop_kernel_width = edge_weight, loop_kernel_width
+        sigma = float(cfg.pixel_sigma_px)
+        K = self.K = problem.K
+        self.calib = gtsam.Cal3_S2Stereo(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2], VIRTUAL_BASELINE_M)
+        self.calib_mono = gtsam.Cal3_S2(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2])
+        huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / sigma)
+        # one noise model per ORB pyramid level: a keypoint's pixel noise grows with its level
+        levels = np.unique(problem.level) if problem.level is not None else np.zeros(1, np.int64)
+        self.stereo_noise = {
+            int(lv): gtsam.noiseModel.Robust.Create(
+                huber,
+                gtsam.noiseModel.Gaussian.Covariance(
+                    _noise_cov(K[0, 0], sigma * SCALE_FACTOR ** int(lv), cfg.depth_sigma_m)
+                ),
+            )
+            for lv in levels
+        }
+        self.mono_noise = {
+            int(lv): gtsam.noiseModel.Robust.Create(
+                huber, gtsam.noiseModel.Isotropic.Sigma(2, sigma * SCALE_FACTOR ** int(lv))
+            )
+            for lv in levels
+        }
+        self.prior_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
 
-    def variables(prob: BAProblem) -> tuple[list[int], set[int]]:
+    def variables(self, prob: BAProblem) -> tuple[list[int], set[int]]:
         """The keyframes to optimise and those held by a prior (at least one per part)."""
+        edges = self.edges
         kf_ids = sorted(
             {int(k) for k in np.unique(prob.kf)} | {e.i for e in edges} | {e.j for e in edges}
         )
-        held = fixed.intersection(kf_ids)
+        held = self.fixed.intersection(kf_ids)
         for group in _components(prob, kf_ids, edges):
             if not held.intersection(group):
                 held.add(min(group))
         return kf_ids, held
 
-    points0 = initial_points(problem, poses)
-    reproj0, _ = residuals(problem, poses, points0, sigma, cfg.depth_sigma_m)
-    K = problem.K
-    calib = gtsam.Cal3_S2Stereo(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2], VIRTUAL_BASELINE_M)
-    calib_mono = gtsam.Cal3_S2(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2])
-    huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / sigma)
-    # one noise model per ORB pyramid level: a keypoint's pixel noise grows with its level
-    levels = np.unique(problem.level) if problem.level is not None else np.zeros(1, np.int64)
-    stereo_noise = {
-        int(lv): gtsam.noiseModel.Robust.Create(
-            huber,
-            gtsam.noiseModel.Gaussian.Covariance(
-                _noise_cov(K[0, 0], sigma * SCALE_FACTOR ** int(lv), cfg.depth_sigma_m)
-            ),
-        )
-        for lv in levels
-    }
-    mono_noise = {
-        int(lv): gtsam.noiseModel.Robust.Create(
-            huber, gtsam.noiseModel.Isotropic.Sigma(2, sigma * SCALE_FACTOR ** int(lv))
-        )
-        for lv in levels
-    }
-    prior_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
-
-    def build(prob: BAProblem, pts: np.ndarray, start: Mapping[int, np.ndarray]):
-        kf_ids, held = variables(prob)
+    def build(self, prob: BAProblem, pts: np.ndarray, start: Mapping[int, np.ndarray]):
+        kf_ids, held = self.variables(prob)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         for k in kf_ids:
@@ -392,26 +381,28 @@ def bundle_adjust(
         for i in range(prob.n_landmarks):
             values.insert(_l(i), gtsam.Point3(*pts[i]))
         for k in sorted(held):
-            graph.add(gtsam.PriorFactorPose3(_x(k), gtsam.Pose3(start[k]), prior_noise))
-        bf = K[0, 0] * VIRTUAL_BASELINE_M
+            graph.add(gtsam.PriorFactorPose3(_x(k), gtsam.Pose3(start[k]), self.prior_noise))
+        bf = self.K[0, 0] * VIRTUAL_BASELINE_M
         obs_level = prob.level.tolist() if prob.level is not None else [0] * len(prob)
         for k, lm, (u, v), z, lv in zip(
             prob.kf.tolist(), prob.landmark.tolist(), prob.uv, prob.depth, obs_level
         ):
             if z > 0:
                 m = gtsam.StereoPoint2(u, u - bf / z, v)
-                graph.add(gtsam.GenericStereoFactor3D(m, stereo_noise[lv], _x(k), _l(lm), calib))
+                graph.add(
+                    gtsam.GenericStereoFactor3D(m, self.stereo_noise[lv], _x(k), _l(lm), self.calib)
+                )
             else:
                 graph.add(
                     gtsam.GenericProjectionFactorCal3_S2(
-                        gtsam.Point2(u, v), mono_noise[lv], _x(k), _l(lm), calib_mono
+                        gtsam.Point2(u, v), self.mono_noise[lv], _x(k), _l(lm), self.calib_mono
                     )
                 )
-        for e in edges:
-            gauss = gtsam.noiseModel.Gaussian.Information(e.information * edge_weight)
+        for e in self.edges:
+            gauss = gtsam.noiseModel.Gaussian.Information(e.information * self.edge_weight)
             noise = (
                 gtsam.noiseModel.Robust.Create(
-                    gtsam.noiseModel.mEstimator.Cauchy.Create(loop_kernel_width), gauss
+                    gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel_width), gauss
                 )
                 if e.kind == "loop"
                 else gauss
@@ -419,10 +410,11 @@ def bundle_adjust(
             graph.add(gtsam.BetweenFactorPose3(_x(e.i), _x(e.j), gtsam.Pose3(e.T_i_j), noise))
         return graph, values, kf_ids
 
-    def optimise(prob: BAProblem, pts: np.ndarray, start: Mapping[int, np.ndarray]):
-        graph, values, kf_ids = build(prob, pts, start)
+    def optimise(self, prob: BAProblem, pts: np.ndarray, start: Mapping[int, np.ndarray]):
+        """(poses by keyframe id, landmark points, iterations, error before, error after)."""
+        graph, values, kf_ids = self.build(prob, pts, start)
         params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(cfg.max_iterations)
+        params.setMaxIterations(self.cfg.max_iterations)
         params.setRelativeErrorTol(1e-5)
         params.setAbsoluteErrorTol(1e-6)
         params.setLinearSolverType("SEQUENTIAL_CHOLESKY")  # ~25% faster than multifrontal here
@@ -442,8 +434,42 @@ def bundle_adjust(
         out_pts = np.array([res.atPoint3(_l(i)) for i in range(prob.n_landmarks)]).reshape(-1, 3)
         return out_poses, out_pts, opt.iterations(), e0, graph.error(res)
 
+
+def bundle_adjust(
+    problem: BAProblem,
+    poses: Mapping[int, np.ndarray],
+    cfg: BAConfig,
+    fixed: Iterable[int] | None = None,
+    edges: Sequence[Edge] = (),
+    edge_weight: float = 1.0,
+    loop_kernel_width: float = 2.0,
+) -> BAResult:
+    """Optimise the poses of the keyframes observed in ``problem`` (plus those joined by
+    ``edges``) and the landmark positions, starting from ``poses`` (``T_world_kf`` by id) and
+    landmarks initialised from depth (:func:`initial_points`); then remove the observations
+    whose whitened residual exceeds ``cfg.outlier_chi2`` and optimise again without them.
+
+    ``fixed``: keyframes held at their starting pose (default: the first keyframe of each
+    connected part fixes the gauge). ``edges``: relative-pose edges (the pose graph's
+    :class:`~slam.backend.pose_graph.Edge`; loop edges get a Cauchy kernel of width
+    ``loop_kernel_width``) with information scaled by ``edge_weight``; only edges between
+    keyframes in ``poses`` are used.
+    """
+    t0 = time.perf_counter()
+    sigma = float(cfg.pixel_sigma_px)
+    missing = sorted({int(k) for k in np.unique(problem.kf)} - set(poses))
+    if missing:
+        raise BundleAdjustmentError(f"observations of keyframes {missing[:5]} without a pose")
+    if len(problem) == 0:
+        return BAResult(skipped="no landmark is observed by two keyframes", ms=_ms(t0))
+    edges = [e for e in edges if e.i in poses and e.j in poses and edge_weight > 0]
+    solver = _Solver(
+        problem, cfg, {int(k) for k in (fixed or ())}, edges, edge_weight, loop_kernel_width
+    )
+    points0 = initial_points(problem, poses)
+    reproj0, _ = residuals(problem, poses, points0, sigma, cfg.depth_sigma_m)
     prob = problem
-    new_poses, pts, iters, err0, err1 = optimise(prob, points0, poses)
+    new_poses, pts, iters, err0, err1 = solver.optimise(prob, points0, poses)
     _, chi2 = residuals(prob, new_poses, pts, sigma, cfg.depth_sigma_m)
     thr = np.where(prob.depth > 0, cfg.outlier_chi2, cfg.outlier_chi2 * CHI2_2DOF / CHI2_3DOF)
     outlier = ~(chi2 <= thr)
@@ -454,7 +480,7 @@ def bundle_adjust(
         if len(prob) == 0:
             return BAResult(skipped="every observation is an outlier", ms=_ms(t0))
         pts_in = pts[np.searchsorted(problem.landmark_ids, prob.landmark_ids)]
-        new_poses, pts, it2, _, err1 = optimise(prob, pts_in, new_poses)
+        new_poses, pts, it2, _, err1 = solver.optimise(prob, pts_in, new_poses)
         iters += it2
     reproj1, _ = residuals(prob, new_poses, pts, sigma, cfg.depth_sigma_m)
     changes = [inv_T(np.asarray(poses[k])) @ new_poses[k] for k in new_poses]
@@ -469,7 +495,7 @@ def bundle_adjust(
         outliers=int(outlier.sum()),
         outlier_kf=problem.kf[outlier],
         outlier_feature=problem.feature[outlier],
-        keyframes=len(variables(prob)[0]),
+        keyframes=len(solver.variables(prob)[0]),
         iterations=int(iters),
         ms=_ms(t0),
         error_before=float(err0),
@@ -477,6 +503,11 @@ def bundle_adjust(
         max_pose_change_m=max(translation_norm(T) for T in changes),
         max_pose_change_deg=max(rotation_angle_deg(T) for T in changes),
     )
+    _log_result(result)
+    return result
+
+
+def _log_result(result: BAResult) -> None:
     log.info(
         "bundle adjustment: %d keyframes, %d landmarks, %d observations (%d outliers removed): "
         "reprojection RMSE %.2f -> %.2f px in %d iterations, %.0f ms; poses moved up to "
@@ -492,7 +523,6 @@ def bundle_adjust(
         1e3 * result.max_pose_change_m,
         result.max_pose_change_deg,
     )
-    return result
 
 
 def _ms(t0: float) -> float:
