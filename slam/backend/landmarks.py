@@ -25,129 +25,69 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from slam.camera import project
+from slam.backend.feature_matching import (
+    colour_intrinsics,
+    distinct_features,
+    guided_match,
+    match_candidates,
+)
 from slam.config import BAConfig
 from slam.errors import SlamError
-from slam.geometry import inv_T, transform_points
+from slam.geometry import inv_T
 from slam.keyframe import Keyframe
 
 log = logging.getLogger(__name__)
-
-#: bits set in each byte value (Hamming distance of ORB descriptors by table look-up)
-_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint16)
-#: candidates within the matching radius considered per projected feature
-_K_NEAREST = 4
-_NO_MATCH = 1 << 12
-#: keypoints of one keyframe closer than this (pixels) are one corner found at several levels
-DUPLICATE_PX = 2.0
-
 
 class LandmarkError(SlamError):
     """The landmark map was asked about a keyframe it does not hold."""
 
 
-def colour_intrinsics(K_tracking: np.ndarray, downsample: int) -> np.ndarray:
-    """The intrinsics ORB pixels refer to (the full-resolution image) from a keyframe's
-    tracking-resolution ``K`` (inverse of :func:`slam.camera.scale_intrinsics`)."""
-    K = np.asarray(K_tracking, float).copy()
-    if downsample == 1:
-        return K
-    K[0, 0] *= downsample
-    K[1, 1] *= downsample
-    K[0, 2] = (K[0, 2] + 0.5) * downsample - 0.5
-    K[1, 2] = (K[1, 2] + 0.5) * downsample - 0.5
-    return K
+class IdForest:
+    """Union-find over landmark ids, vectorised: ``root`` resolves arrays of ids at once
+    (paths are compressed after every merge, so a lookup is one or two array gathers)."""
 
-
-def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamming distances between ORB descriptors ``a`` (..., 32) and ``b`` (..., 32) uint8."""
-    return _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=-1)
-
-
-@dataclass
-class Matches:
-    """Feature pairs between keyframe ``a`` (rows ``ia``) and keyframe ``b`` (rows ``ib``)."""
-
-    ia: np.ndarray
-    ib: np.ndarray
-    distance: np.ndarray
+    def __init__(self) -> None:
+        self.parent = np.zeros(0, np.int64)
 
     def __len__(self) -> int:
-        return len(self.ia)
+        return len(self.parent)
 
+    def new(self, n: int) -> np.ndarray:
+        """``n`` fresh ids."""
+        ids = np.arange(len(self), len(self) + n, dtype=np.int64)
+        self.parent = np.concatenate([self.parent, ids])
+        return ids
 
-def distinct_features(pixels: np.ndarray, radius_px: float = DUPLICATE_PX) -> np.ndarray:
-    """Mask of the keypoints that are not near-duplicates of an earlier one: ORB detects a
-    corner at several pyramid levels, leaving clusters of keypoints within a pixel or two of
-    each other (typically as many such pairs as keypoints) that would make one physical point
-    two features of one keyframe. The first of each cluster (the finest level) is kept."""
-    keep = np.ones(len(pixels), bool)
-    if len(pixels) < 2:
-        return keep
-    pairs = cKDTree(pixels).query_pairs(radius_px, output_type="ndarray")
-    if len(pairs):
-        keep[pairs.max(axis=1)] = False
-    return keep
+    def root(self, ids: np.ndarray) -> np.ndarray:
+        """The root of each id (-1 stays -1)."""
+        ids = np.asarray(ids, np.int64)
+        out = ids.copy()
+        ok = ids >= 0
+        r = out[ok]
+        while True:
+            p = self.parent[r]
+            if np.array_equal(p, r):
+                break
+            r = p
+        out[ok] = r
+        return out
 
-
-def guided_match(
-    kf_a: Keyframe,
-    kf_b: Keyframe,
-    T_a_b: np.ndarray,
-    K: np.ndarray,
-    cfg: BAConfig,
-    use_a: np.ndarray | None = None,
-    use_b: np.ndarray | None = None,
-    tree_a: cKDTree | None = None,
-) -> Matches:
-    """Matches between the features of ``kf_a`` and ``kf_b`` given their relative pose
-    ``T_a_b`` (b's camera in a's): b's points projected into a, candidates of a within
-    ``match_radius_px`` whose depth agrees (2 cm + ``depth_tolerance`` of the depth), the
-    nearest descriptor if within ``max_hamming`` and ``match_ratio`` of the second nearest;
-    each feature of a keeps its best match only. ``use_a``/``use_b``: masks of the features
-    that may match (default all); ``tree_a``: a k-d tree over a's usable pixels, if built."""
-    fa, fb = kf_a.features, kf_b.features
-    empty = Matches(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int))
-    idx_a = np.flatnonzero(use_a) if use_a is not None else np.arange(len(fa))
-    idx_b = np.flatnonzero(use_b) if use_b is not None else np.arange(len(fb))
-    if len(idx_a) < 2 or len(idx_b) == 0:
-        return empty
-    X = transform_points(T_a_b, fb.points_cam[idx_b])
-    front = X[:, 2] > 0.05
-    if not front.any():
-        return empty
-    ib_all = idx_b[front]
-    uv = project(X[front], K)
-    tree = tree_a if tree_a is not None else cKDTree(fa.pixels[idx_a])
-    k = min(_K_NEAREST, len(idx_a))
-    _, cand = tree.query(uv, k=k, distance_upper_bound=cfg.match_radius_px)
-    cand = np.asarray(cand).reshape(len(uv), k)
-    valid = cand < len(idx_a)
-    cand = idx_a[np.where(valid, cand, 0)]  # rows of a's features
-    z_pred = X[front, 2][:, None]
-    valid &= np.abs(fa.points_cam[cand, 2] - z_pred) < 0.02 + cfg.depth_tolerance * z_pred
-    dist = hamming(fb.descriptors[ib_all][:, None, :], fa.descriptors[cand]).astype(int)
-    dist = np.where(valid, dist, _NO_MATCH)
-    order = np.argsort(dist, axis=1)
-    rows = np.arange(len(uv))
-    best = dist[rows, order[:, 0]]
-    second = dist[rows, order[:, 1]] if k > 1 else np.full(len(uv), _NO_MATCH)
-    ok = (best <= cfg.max_hamming) & (best < cfg.match_ratio * second)
-    ia = cand[rows, order[:, 0]][ok]
-    ib = ib_all[ok]
-    d = best[ok]
-    # one match per feature of a: the nearest descriptor
-    o = np.lexsort((d, ia))
-    ia, ib, d = ia[o], ib[o], d[o]
-    first = np.ones(len(ia), bool)
-    first[1:] = ia[1:] != ia[:-1]
-    return Matches(ia[first], ib[first], d[first])
+    def union(self, a: np.ndarray, b: np.ndarray) -> int:
+        """Merge ids ``a[k]`` into ``b[k]``; returns how many merges happened."""
+        n = 0
+        for x, y in zip(a.tolist(), b.tolist()):  # a handful per keyframe
+            rx, ry = int(self.root(np.array([x]))[0]), int(self.root(np.array([y]))[0])
+            if rx != ry:
+                self.parent[rx] = ry
+                n += 1
+        if n:
+            self.parent = self.root(np.arange(len(self)))
+        return n
 
 
 class LandmarkMap:
@@ -164,84 +104,19 @@ class LandmarkMap:
         self.keyframes: dict[int, Keyframe] = {}
         self.assoc: dict[int, np.ndarray] = {}  # keyframe id -> landmark id per feature (-1)
         self.usable: dict[int, np.ndarray] = {}  # keyframe id -> mask of distinct features
-        self._parent = np.zeros(0, np.int64)  # union-find over landmark ids
+        self.ids = IdForest()  # landmark ids; a merged id resolves to its root
         self.merges = 0  # landmarks merged into others (same physical point found twice)
         self.loop_merges = 0  # feature pairs associated across accepted loops
 
-    # --- union-find
-    @property
-    def n_ids(self) -> int:
-        return len(self._parent)
-
-    def _new_ids(self, n: int) -> np.ndarray:
-        ids = np.arange(self.n_ids, self.n_ids + n, dtype=np.int64)
-        self._parent = np.concatenate([self._parent, ids])
-        return ids
-
     def root(self, ids: np.ndarray) -> np.ndarray:
         """The landmark each id stands for now (merged ids resolve to their root; -1 stays)."""
-        ids = np.asarray(ids, np.int64)
-        out = ids.copy()
-        ok = ids >= 0
-        r = out[ok]
-        while True:
-            p = self._parent[r]
-            if np.array_equal(p, r):
-                break
-            r = p
-        out[ok] = r
-        return out
-
-    def _union(self, a: np.ndarray, b: np.ndarray) -> int:
-        """Merge landmark pairs ``a[k]`` into ``b[k]``; returns how many merges happened."""
-        n = 0
-        for x, y in zip(a.tolist(), b.tolist()):  # a handful per keyframe
-            rx, ry = int(self.root(np.array([x]))[0]), int(self.root(np.array([y]))[0])
-            if rx != ry:
-                self._parent[rx] = ry
-                n += 1
-        if n:
-            self._compress()
-        return n
-
-    def _compress(self) -> None:
-        self._parent = self.root(np.arange(self.n_ids))
+        return self.ids.root(ids)
 
     # --- building
     def K(self, kf: Keyframe) -> np.ndarray:
         if kf.K is None:
             raise LandmarkError(f"keyframe {kf.id} has no intrinsics")
         return colour_intrinsics(kf.K, self.downsample)
-
-    def neighbours(
-        self,
-        kf: Keyframe,
-        poses: Mapping[int, np.ndarray],
-        same_map: Callable[[Keyframe, Keyframe], bool] | None = None,
-    ) -> list[Keyframe]:
-        """The keyframes a new keyframe is matched against: the previous ``match_window`` of
-        the same map, then up to ``match_nearby`` others whose poses lie within
-        ``nearby_distance_m`` / ``nearby_angle_deg``, nearest first."""
-        cfg = self.cfg
-        older = [
-            o
-            for o in self.keyframes.values()
-            if o.id != kf.id and len(o.features) and (same_map is None or same_map(o, kf))
-        ]
-        older.sort(key=lambda o: o.id)
-        window = older[-cfg.match_window :]
-        rest = older[: -cfg.match_window] if len(older) > cfg.match_window else []
-        if not rest or cfg.match_nearby == 0:
-            return window[::-1]
-        T = poses[kf.id]
-        Ts = np.stack([poses[o.id] for o in rest])
-        dist = np.linalg.norm(Ts[:, :3, 3] - T[:3, 3], axis=1)
-        # angle between the optical axes
-        cosang = np.clip(Ts[:, :3, 2] @ T[:3, 2], -1.0, 1.0)
-        ang = np.degrees(np.arccos(cosang))
-        near = np.flatnonzero((dist < cfg.nearby_distance_m) & (ang < cfg.nearby_angle_deg))
-        near = near[np.argsort(dist[near] / max(cfg.nearby_distance_m, 1e-9) + ang[near] / 90.0)]
-        return window[::-1] + [rest[i] for i in near[: cfg.match_nearby]]
 
     def add_keyframe(
         self,
@@ -257,7 +132,11 @@ class LandmarkMap:
         if kf.id in self.keyframes:
             raise LandmarkError(f"keyframe {kf.id} was already added")
         poses = poses if poses is not None else _odometry_poses(self.keyframes, kf)
-        nbrs = self.neighbours(kf, poses, same_map) if len(kf.features) else []
+        nbrs = (
+            match_candidates(self.keyframes.values(), kf, poses, self.cfg, same_map)
+            if len(kf.features)
+            else []
+        )
         self._register(kf)
         if not nbrs:
             return 0
@@ -357,7 +236,7 @@ class LandmarkMap:
         u = _first_occurrence(other_l)  # each merged into one landmark of a only
         other_l, into = other_l[u], into[u]
         ok = ~self._coobserved(other_l, into)
-        merged = self._union(other_l[ok], into[ok])
+        merged = self.ids.union(other_l[ok], into[ok])
         self.merges += merged
         if merged:
             chosen = self.root(chosen)
@@ -365,7 +244,7 @@ class LandmarkMap:
         lone = lb < 0
         need_new = np.unique(ia[lone & (chosen[ia] < 0)])
         if len(need_new):
-            chosen[need_new] = self._new_ids(len(need_new))
+            chosen[need_new] = self.ids.new(len(need_new))
         for j, (other_kf, _) in enumerate(pairs):
             sel = lone & (nb == j)
             if not sel.any():
@@ -469,7 +348,7 @@ class LandmarkMap:
             "downsample": self.downsample,
             "keyframes": sorted(self.keyframes),
             "assoc": {int(k): v.copy() for k, v in self.assoc.items()},
-            "parent": self._parent.copy(),
+            "parent": self.ids.parent.copy(),
             "merges": self.merges,
             "loop_merges": self.loop_merges,
         }
@@ -484,7 +363,7 @@ class LandmarkMap:
             raise LandmarkError(f"landmark state names keyframes {missing[:5]} not given")
         for k in state["keyframes"]:
             out._register(keyframes[k], np.asarray(state["assoc"][k]).copy())
-        out._parent = np.asarray(state["parent"], np.int64).copy()
+        out.ids.parent = np.asarray(state["parent"], np.int64).copy()
         out.merges = int(state["merges"])
         out.loop_merges = int(state["loop_merges"])
         return out

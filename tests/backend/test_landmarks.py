@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from slam.backend.bundle_adjustment import BAProblem
-from slam.backend.landmarks import (
-    LandmarkMap,
+from slam.backend.feature_matching import (
     colour_intrinsics,
     distinct_features,
     guided_match,
     hamming,
 )
+from slam.backend.landmarks import LandmarkMap
 from slam.camera import project, scale_intrinsics
 from slam.config import BAConfig
 from slam.frontend.features import OrbExtractor, match_descriptors
