@@ -21,7 +21,8 @@ from slam.errors import (
     TrackingError,
     TrajectoryError,
 )
-from slam.pipeline import RunResult, run, save_run
+from slam.pipeline import RunResult, run
+from slam.run_folder.writer import save_run
 from slam.system import FrameResult, Slam
 from slam.trajectory import Trajectory, read_tum, write_tum
 
