@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from slam.data.layouts import LAYOUT_NAMES, layout_names_text
 from slam.errors import ConfigError
 
 
@@ -252,10 +253,10 @@ class SlamConfig:
         ba = self.ba
         checks: list[tuple[bool, str, Any, str]] = [
             (
-                d.layout in ("auto", "tum", "7scenes"),
+                d.layout in LAYOUT_NAMES,
                 "dataset.layout",
                 d.layout,
-                "auto, tum or 7scenes",
+                layout_names_text(),
             ),
             (
                 d.max_frames is None or d.max_frames >= 1,
