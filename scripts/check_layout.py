@@ -33,6 +33,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "slam.records",
             "slam.keyframe",
             "slam.trajectory",
+            "slam.data.layouts",
         ),
     ),  # fmt: skip
     ("data", ("slam.data",)),

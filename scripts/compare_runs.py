@@ -20,8 +20,9 @@ import sys
 from pathlib import Path
 
 from slam.errors import SlamError
+from slam.run_folder import RunFolder
 from slam.tools import eval as slam_eval
-from slam.trajectory import read_tum
+from slam.tools.plots import plot_trajectories
 
 
 def _rmse(rpe: slam_eval.RPEResult) -> float | None:
@@ -31,8 +32,8 @@ def _rmse(rpe: slam_eval.RPEResult) -> float | None:
 def summarize(run_dir: Path, gt_file: Path | None) -> dict:
     ev = slam_eval.evaluate_run(run_dir, gt_file, rpe_deltas=["1f", "1s"])
     try:
-        metrics = json.loads((run_dir / "metrics.json").read_text())
-    except (OSError, ValueError):
+        metrics = RunFolder(run_dir).metrics()
+    except SlamError:
         metrics = {}
     odo = ev.odometry or ev.final
     return {
@@ -102,10 +103,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.plot:
             gt, _ = slam_eval.load_run_ground_truth(args.runs[0], args.gt)
             trajs = {
-                lab: slam_eval.align_trajectory(gt, read_tum(p / "trajectory.txt"))
+                lab: slam_eval.align_trajectory(gt, RunFolder(p).trajectory())
                 for lab, p in zip(labels, args.runs)
             }
-            slam_eval.plot_trajectories(args.plot, gt, trajs, title="final trajectories")
+            plot_trajectories(args.plot, gt, trajs, title="final trajectories")
     except SlamError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

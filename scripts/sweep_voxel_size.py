@@ -25,6 +25,7 @@ from pathlib import Path
 import slam
 from slam.synthetic import SynthConfig, generate_sequence
 from slam.tools import eval as slam_eval
+from slam.tools.plots import save_figure
 
 
 def synthetic_sequence(folder: Path, frames: int) -> Path:
@@ -91,7 +92,7 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    slam_eval.save_figure(fig, path)
+    save_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -37,7 +37,7 @@ _EXPORTS = {
     "TrajectoryError": "slam.errors",
     "RunResult": "slam.results",
     "run": "slam.pipeline",
-    "save_run": "slam.pipeline",
+    "save_run": "slam.run_folder.writer",
     "resume_run": "slam.api",
     "run_sequence": "slam.api",
     "FrameResult": "slam.system",
@@ -78,7 +78,8 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
         TrackingError,
         TrajectoryError,
     )
-    from slam.pipeline import run, save_run
+    from slam.pipeline import run
     from slam.results import RunResult
+    from slam.run_folder.writer import save_run
     from slam.system import FrameResult, Slam
     from slam.trajectory import Trajectory, read_tum, write_tum

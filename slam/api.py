@@ -12,10 +12,18 @@ from slam.config import SlamConfig, load_config
 from slam.data.base import Sequence
 from slam.data.loader import open_sequence
 from slam.errors import ConfigError, RunFolderError
-from slam.pipeline import FrameCallback, ProgressCallback, RunResult, run, save_run
-from slam.run_folder import prepare_run_dir, remove_work_dirs
-from slam.run_folder.checkpoint import has_checkpoint
-from slam.trajectory import atomic_write_text
+from slam.pipeline import FrameCallback, ProgressCallback, RunResult, run
+from slam.run_folder import (
+    CHECKPOINT_DIR,
+    CONFIG_FILE,
+    METRICS_FILE,
+    RunFolder,
+    prepare_run_dir,
+    remove_work_dirs,
+    save_run,
+    write_config,
+)
+from slam.run_folder.checkpoint import STATE_FILE, has_checkpoint
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +64,7 @@ def run_sequence(
     cfg.dataset.path = str(Path(sequence).resolve())
     seq: Sequence = open_sequence(sequence, cfg.dataset.layout, cfg.dataset.calibration)
     recorder = _recorder(rerun, seq.name)
-    atomic_write_text(out / "config.yaml", cfg.to_yaml())
+    write_config(out, cfg)
     result = _recorded(
         recorder,
         lambda hook: run(
@@ -121,18 +129,19 @@ def resume_run(
     with (``run_dir/config.yaml``), and write the same outputs as an uninterrupted run.
     ``checkpoint_every``: default the interrupted run's. ``rerun``: record the resumed frames
     and the result into this ``.rrd`` file (``slam view`` records the whole run afterwards)."""
-    run_dir = Path(run_dir)
-    if (run_dir / "metrics.json").is_file():
-        raise RunFolderError(f"{run_dir}: the run is complete (metrics.json); nothing to resume")
+    folder = RunFolder(run_dir)
+    run_dir = folder.path
+    if folder.complete:
+        raise RunFolderError(f"{run_dir}: the run is complete ({METRICS_FILE}); nothing to resume")
     if not has_checkpoint(run_dir):
         raise RunFolderError(
-            f"{run_dir}: no checkpoint to resume from (checkpoint/state.pkl); the run was "
-            "stopped before its first checkpoint or ran without --checkpoint-every: start it "
-            "again with --overwrite"
+            f"{run_dir}: no checkpoint to resume from ({CHECKPOINT_DIR}/{STATE_FILE}); the run "
+            "was stopped before its first checkpoint or ran without --checkpoint-every: start "
+            "it again with --overwrite"
         )
-    cfg = load_config(run_dir / "config.yaml")
+    cfg = load_config(folder.file(CONFIG_FILE))
     if not cfg.dataset.path:
-        raise RunFolderError(f"{run_dir / 'config.yaml'}: dataset.path is missing")
+        raise RunFolderError(f"{folder.file(CONFIG_FILE)}: dataset.path is missing")
     seq = open_sequence(cfg.dataset.path, cfg.dataset.layout, cfg.dataset.calibration)
     recorder = _recorder(rerun, seq.name)
     result = _recorded(

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -13,7 +16,15 @@ from rich.logging import RichHandler
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from slam.cli_eval import echo_result, echo_run
+from slam.data.layouts import formats_text
 from slam.errors import SlamError
+from slam.run_folder import (
+    CHECKPOINT_DIR,
+    ODOMETRY_FILE,
+    RECORDING_FILE,
+    REPORT_FILE,
+    TRAJECTORY_FILE,
+)
 
 # options shared by `slam eval` and `slam report`
 TMaxDiff = Annotated[
@@ -65,6 +76,24 @@ def _fail(exc: Exception) -> None:
     raise typer.Exit(code=2)
 
 
+def command(*args, **kwargs) -> Callable[[Callable], Callable]:
+    """``app.command`` with the command line's one error boundary: a :class:`SlamError` (what
+    the library raises for anything the user can fix) is printed as ``error: ...`` and exits
+    with code 2; anything else is a bug and keeps its traceback."""
+
+    def register(fn: Callable) -> Callable:
+        @functools.wraps(fn)
+        def guarded(*a, **kw):
+            try:
+                return fn(*a, **kw)
+            except SlamError as exc:
+                _fail(exc)
+
+        return app.command(*args, **kwargs)(guarded)
+
+    return register
+
+
 def _progress(*columns) -> Progress:
     return Progress(
         TextColumn("[bold]{task.description}"),
@@ -94,11 +123,47 @@ def _generate_demo(quiet: bool) -> Path:
         )
 
 
-@app.command()
+class _RunProgress:
+    """The progress bar of `slam run`: it appears at the first frame (not while the sequence is
+    checked), shows fps and the tracking state; nothing with --quiet."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.bar = _progress(
+            TextColumn("{task.fields[fps]:>5.1f} fps"), TextColumn("{task.fields[state]}")
+        )
+        self.task = self.bar.add_task("tracking", total=None, fps=0.0, state="")
+        self.t0: float | None = None  # set at the first frame
+        self.first = 0
+
+    def on_frame(self, done: int, total: int, status) -> None:
+        if self.quiet:
+            return
+        if self.t0 is None:
+            self.bar.start()
+            self.t0 = time.perf_counter()
+            self.first = done
+        fps = (done - self.first) / max(time.perf_counter() - self.t0, 1e-9)
+        if done == total:
+            state = "finishing: pose graph, map, mesh, files"
+        elif status is None:
+            state = "[yellow]skipped (unreadable)[/]"
+        elif status.ok:
+            state = f"{status.path} overlap {status.overlap:.2f}"
+        else:
+            state = "[red]lost[/]"
+        self.bar.update(self.task, completed=done, total=total, fps=fps, state=state)
+
+    def stop(self) -> None:
+        if self.t0 is not None:  # started at the first frame
+            self.bar.stop()
+
+
+@command()
 def run(
     sequence: Annotated[
         Optional[Path],
-        typer.Argument(help="Sequence folder (TUM RGB-D or 7-Scenes). Omit for the built-in demo."),
+        typer.Argument(help=f"Sequence folder ({formats_text()}). Omit for the built-in demo."),
     ] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Run folder for the results.")] = Path(
         "runs/latest"
@@ -114,7 +179,7 @@ def run(
         typer.Option(
             "--checkpoint-every",
             min=0,
-            help="Write the run's state to OUT/checkpoint/ every N frames (0: never), so "
+            help=f"Write the run's state to OUT/{CHECKPOINT_DIR}/ every N frames (0: never), so "
             "`--resume` can continue it after a crash or kill.",
         ),
     ] = 0,
@@ -142,74 +207,43 @@ def run(
     quiet: Quiet = False,
 ) -> None:
     """Track a sequence, fuse a TSDF map and write trajectory, mesh and metrics to the run folder."""
-    import time
-
     from slam.api import resume_run, run_sequence
     from slam.pipeline import summary_line
 
     _setup_logging(verbose, quiet)
-    try:
-        if resume is not None and (sequence is not None or config is not None or max_frames):
-            raise SlamError(
-                "--resume continues a run with its own sequence and config: give no SEQUENCE, "
-                "--config or --max-frames with it"
-            )
-        if rerun is not None:
-            from slam.tools.viewer import check_recording_path
-
-            check_recording_path(rerun)
-        if sequence is None and resume is None:
-            sequence = _generate_demo(quiet)
-        progress = _progress(
-            TextColumn("{task.fields[fps]:>5.1f} fps"), TextColumn("{task.fields[state]}")
+    if resume is not None and (sequence is not None or config is not None or max_frames):
+        raise SlamError(
+            "--resume continues a run with its own sequence and config: give no SEQUENCE, "
+            "--config or --max-frames with it"
         )
-        task = progress.add_task("tracking", total=None, fps=0.0, state="")
-        t0: list[float] = []  # set at the first frame: the bar appears once frames flow
-        first: list[int] = []
+    if rerun is not None:
+        from slam.tools.viewer import check_recording_path
 
-        def on_frame(done: int, total: int, status) -> None:
-            if quiet:
-                return
-            if not t0:
-                progress.start()
-                t0.append(time.perf_counter())
-                first.append(done)
-            fps = (done - first[0]) / max(time.perf_counter() - t0[0], 1e-9)
-            if done == total:
-                state = "finishing: pose graph, map, mesh, files"
-            elif status is None:
-                state = "[yellow]skipped (unreadable)[/]"
-            elif status.ok:
-                state = f"{status.path} overlap {status.overlap:.2f}"
-            else:
-                state = "[red]lost[/]"
-            progress.update(task, completed=done, total=total, fps=fps, state=state)
-
-        try:
-            if resume is not None:
-                result, run_dir = resume_run(
-                    resume,
-                    progress=on_frame,
-                    checkpoint_every=checkpoint_every or None,
-                    rerun=rerun,
-                )
-            else:
-                result, run_dir = run_sequence(
-                    sequence,
-                    out,
-                    config_path=config,
-                    max_frames=max_frames,
-                    progress=on_frame,
-                    checkpoint_every=checkpoint_every,
-                    overwrite=overwrite,
-                    rerun=rerun,
-                )
-        finally:
-            if t0:  # started at the first frame
-                progress.stop()
-    except SlamError as exc:
-        _fail(exc)
-        return
+        check_recording_path(rerun)
+    if sequence is None and resume is None:
+        sequence = _generate_demo(quiet)
+    bar = _RunProgress(quiet)
+    try:
+        if resume is not None:
+            result, run_dir = resume_run(
+                resume,
+                progress=bar.on_frame,
+                checkpoint_every=checkpoint_every or None,
+                rerun=rerun,
+            )
+        else:
+            result, run_dir = run_sequence(
+                sequence,
+                out,
+                config_path=config,
+                max_frames=max_frames,
+                progress=bar.on_frame,
+                checkpoint_every=checkpoint_every,
+                overwrite=overwrite,
+                rerun=rerun,
+            )
+    finally:
+        bar.stop()
     if quiet:
         return
     files = ", ".join(sorted(p.name for p in run_dir.iterdir() if p.is_file()))
@@ -219,12 +253,12 @@ def run(
     typer.echo(summary_line(result.metrics))
 
 
-@app.command()
+@command()
 def view(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `slam run`.")],
     out: Annotated[
         Optional[Path],
-        typer.Option("--out", "-o", help="Recording file to write [RUN_DIR/recording.rrd]."),
+        typer.Option("--out", "-o", help=f"Recording file to write [RUN_DIR/{RECORDING_FILE}]."),
     ] = None,
     open_viewer: Annotated[
         bool, typer.Option("--open", help="Start the rerun viewer on it (needs a display).")
@@ -245,18 +279,15 @@ def view(
     from slam.tools.viewer import open_in_viewer, record_run_folder
 
     _setup_logging(verbose)
-    try:
-        path = record_run_folder(run_dir, out, image_scale=image_scale)
-        typer.echo(f"wrote {path}")
-        if open_viewer:
-            open_in_viewer(path)
-        else:
-            typer.echo(f"open it with: rerun {path}")
-    except SlamError as exc:
-        _fail(exc)
+    path = record_run_folder(run_dir, out, image_scale=image_scale)
+    typer.echo(f"wrote {path}")
+    if open_viewer:
+        open_in_viewer(path)
+    else:
+        typer.echo(f"open it with: rerun {path}")
 
 
-@app.command()
+@command()
 def synth(
     out: Annotated[Path, typer.Argument(help="Folder to write the TUM-layout sequence into.")],
     frames: Annotated[int, typer.Option("--frames", help="Number of frames.")] = 300,
@@ -283,27 +314,23 @@ def synth(
     from slam.synthetic import SynthConfig, generate_sequence
 
     _setup_logging()
-    try:
-        cfg = SynthConfig(
-            frames=frames, loop=loop, seed=seed, alias=alias, noise=noise, drift_bias=drift_bias
+    cfg = SynthConfig(
+        frames=frames, loop=loop, seed=seed, alias=alias, noise=noise, drift_bias=drift_bias
+    )
+    with _progress() as bar:
+        task = bar.add_task("rendering", total=frames)
+        path = generate_sequence(
+            out, cfg, progress=lambda done, total: bar.update(task, completed=done)
         )
-        with _progress() as bar:
-            task = bar.add_task("rendering", total=frames)
-            path = generate_sequence(
-                out, cfg, progress=lambda done, total: bar.update(task, completed=done)
-            )
-    except SlamError as exc:
-        _fail(exc)
-        return
     typer.echo(f"wrote {frames} frames to {path}")
 
 
-@app.command("eval")
+@command("eval")
 def eval_cmd(
     gt: Annotated[
         Path,
         typer.Argument(
-            help="A run folder (evaluates its trajectory.txt and odometry.txt against the "
+            help=f"A run folder (evaluates its {TRAJECTORY_FILE} and {ODOMETRY_FILE} against the "
             "sequence's ground truth), or a ground-truth trajectory file (TUM format)."
         ),
     ],
@@ -348,63 +375,81 @@ def eval_cmd(
 
     _setup_logging()
     deltas = rpe_delta or ["1f", "1s", "1m"]
-    try:
-        if gt.is_dir():
-            if est is not None:
-                raise SlamError(
-                    f"{gt} is a run folder: give it alone (`slam eval RUN_DIR`), or give two "
-                    f"trajectory files (`slam eval GT EST`)"
-                )
-            ev = slam_eval.evaluate_run(gt, gt_file, t_max_diff, correct_scale, deltas, drift_align)
-            if plot is not None:
-                ref, _ = slam_eval.load_run_ground_truth(gt, gt_file)
-                trajs = {}
-                if ev.odometry is not None and not ev.odometry_identical:
-                    odo = read_tum(gt / "odometry.txt")
-                    trajs["odometry"] = slam_eval.align_trajectory(
-                        ref, odo, correct_scale, t_max_diff
-                    )
-                trajs["final"] = slam_eval.align_trajectory(
-                    ref, read_tum(gt / "trajectory.txt"), correct_scale, t_max_diff
-                )
-                slam_eval.plot_trajectories(plot, ref, trajs, title=str(gt))
-            if as_json:
-                typer.echo(json.dumps(ev.as_dict()))
-            else:
-                echo_run(ev)
-            return
-        if est is None:
+    if gt.is_dir():
+        if est is not None:
             raise SlamError(
-                f"{gt} is not a folder: give a run folder (`slam eval RUN_DIR`) or a ground-truth "
-                f"and an estimated trajectory file (`slam eval GT EST`)"
+                f"{gt} is a run folder: give it alone (`slam eval RUN_DIR`), or give two "
+                f"trajectory files (`slam eval GT EST`)"
             )
-        gt_traj, est_traj = read_tum(gt), read_tum(est)
-        res = slam_eval.evaluate_full(
-            gt_traj,
-            est_traj,
-            max_diff=t_max_diff,
-            correct_scale=correct_scale,
-            rpe_deltas=deltas,
-            drift_alignment=drift_align,
-        )
-        if plot is not None:
-            aligned = slam_eval.align_trajectory(gt_traj, est_traj, correct_scale, t_max_diff)
-            slam_eval.plot_trajectories(plot, gt_traj, {est.stem: aligned}, title=str(est))
-    except SlamError as exc:
-        _fail(exc)
+        _eval_run_folder(gt, gt_file, plot, as_json, t_max_diff, correct_scale, deltas, drift_align)
         return
+    if est is None:
+        raise SlamError(
+            f"{gt} is not a folder: give a run folder (`slam eval RUN_DIR`) or a ground-truth "
+            f"and an estimated trajectory file (`slam eval GT EST`)"
+        )
+    gt_traj, est_traj = read_tum(gt), read_tum(est)
+    res = slam_eval.evaluate_full(
+        gt_traj,
+        est_traj,
+        max_diff=t_max_diff,
+        correct_scale=correct_scale,
+        rpe_deltas=deltas,
+        drift_alignment=drift_align,
+    )
+    if plot is not None:
+        from slam.tools.plots import plot_trajectories
+
+        aligned = slam_eval.align_trajectory(gt_traj, est_traj, correct_scale, t_max_diff)
+        plot_trajectories(plot, gt_traj, {est.stem: aligned}, title=str(est))
     if as_json:
         typer.echo(json.dumps(res.as_dict()))
         return
     echo_result(res)
 
 
-@app.command("report")
+def _eval_run_folder(
+    run_dir: Path,
+    gt_file: Optional[Path],
+    plot: Optional[Path],
+    as_json: bool,
+    t_max_diff: float,
+    correct_scale: bool,
+    deltas: list[str],
+    drift_align: Optional[str],
+) -> None:
+    """`slam eval RUN_DIR`: final and odometry side by side (and their top-view plot)."""
+    from slam.run_folder import RunFolder
+    from slam.tools import eval as slam_eval
+
+    run = RunFolder(run_dir)
+    ev = slam_eval.evaluate_run(run, gt_file, t_max_diff, correct_scale, deltas, drift_align)
+    if plot is not None:
+        from slam.tools.plots import plot_trajectories
+
+        ref, _ = slam_eval.load_run_ground_truth(run, gt_file)
+        trajs = {}
+        odo = run.odometry() if not ev.odometry_identical else None
+        if ev.odometry is not None and odo is not None:
+            trajs["odometry"] = slam_eval.align_trajectory(ref, odo, correct_scale, t_max_diff)
+        trajs["final"] = slam_eval.align_trajectory(
+            ref, run.trajectory(), correct_scale, t_max_diff
+        )
+        plot_trajectories(plot, ref, trajs, title=str(run_dir))
+    if as_json:
+        typer.echo(json.dumps(ev.as_dict()))
+    else:
+        echo_run(ev)
+
+
+@command("report")
 def report_cmd(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `slam run`.")],
     out: Annotated[
         Optional[Path],
-        typer.Option("--out", "-o", help="Folder for report.md and the PNGs (default: RUN_DIR)."),
+        typer.Option(
+            "--out", "-o", help=f"Folder for {REPORT_FILE} and the PNGs (default: RUN_DIR)."
+        ),
     ] = None,
     gt_file: Annotated[
         Optional[Path],
@@ -417,11 +462,7 @@ def report_cmd(
     from slam.tools.report import write_report
 
     _setup_logging()
-    try:
-        rep = write_report(run_dir, out, gt_file, t_max_diff, correct_scale)
-    except SlamError as exc:
-        _fail(exc)
-        return
+    rep = write_report(run_dir, out, gt_file, t_max_diff, correct_scale)
     typer.echo(f"wrote {rep.markdown}")
     for p in rep.plots:
         typer.echo(f"wrote {p}")
@@ -429,7 +470,7 @@ def report_cmd(
         typer.echo(f"no ground truth: {rep.ground_truth_error}")
 
 
-@app.command("bench")
+@command("bench")
 def bench_cmd(
     suite: Annotated[Path, typer.Argument(help="Suite YAML: sequences x configs.")],
     out: Annotated[
@@ -457,20 +498,16 @@ def bench_cmd(
     from slam.tools.bench import format_markdown, load_suite, run_suite
 
     _setup_logging(verbose)
-    try:
-        s = load_suite(suite)
-        out_dir = out if out is not None else Path("runs") / "bench" / s.name
+    s = load_suite(suite)
+    out_dir = out if out is not None else Path("runs") / "bench" / s.name
 
-        def progress(row: dict, done: int, total: int) -> None:
-            state = "[green]ok[/]" if row["status"] == "ok" else f"[red]failed[/] {row['error']}"
-            ate = row.get("ate_rmse_m")
-            ate_txt = f" ATE {ate:.4f} m" if isinstance(ate, float) else ""
-            console.print(f"[{done}/{total}] {row['sequence']} / {row['config']}: {state}{ate_txt}")
+    def progress(row: dict, done: int, total: int) -> None:
+        state = "[green]ok[/]" if row["status"] == "ok" else f"[red]failed[/] {row['error']}"
+        ate = row.get("ate_rmse_m")
+        ate_txt = f" ATE {ate:.4f} m" if isinstance(ate, float) else ""
+        console.print(f"[{done}/{total}] {row['sequence']} / {row['config']}: {state}{ate_txt}")
 
-        res = run_suite(s, out_dir, jobs=jobs, ray_address=ray, progress=progress)
-    except SlamError as exc:
-        _fail(exc)
-        return
+    res = run_suite(s, out_dir, jobs=jobs, ray_address=ray, progress=progress)
     typer.echo(format_markdown(res.rows))
     for path in res.tables.values():
         typer.echo(f"wrote {path}")

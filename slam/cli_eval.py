@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import typer
 
+from slam.run_folder import ODOMETRY_FILE
+
 _STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
 
 
@@ -90,7 +92,7 @@ def echo_run(ev) -> None:
     if ev.loops_accepted is not None:
         typer.echo(f"loops        {ev.loops_accepted} accepted")
     if ev.odometry is None:
-        typer.echo("odometry     (no odometry.txt)")
+        typer.echo(f"odometry     (no {ODOMETRY_FILE})")
     elif ev.odometry_identical:
         typer.echo("odometry     identical to the final trajectory (no pose corrected)")
     width = max(len(r[0]) for r in rows)

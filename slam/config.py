@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from slam.data.layouts import LAYOUT_NAMES, layout_names_text
 from slam.errors import ConfigError
 
 
@@ -259,7 +260,7 @@ class SlamConfig:
         d, t, m, lp, b = self.dataset, self.tracking, self.mapping, self.loop, self.backend
         ba = self.ba
         checks: list[tuple[bool, str, Any, str]] = [
-            (d.layout in ("auto", "tum", "7scenes"), "dataset.layout", d.layout, "auto, tum or 7scenes"),
+            (d.layout in LAYOUT_NAMES, "dataset.layout", d.layout, layout_names_text()),
             (d.max_frames is None or d.max_frames >= 1, "dataset.max_frames", d.max_frames, ">= 1 (or null for all)"),
             (d.stride >= 1, "dataset.stride", d.stride, ">= 1"),
             (t.downsample in (1, 2, 4), "tracking.downsample", t.downsample, "1, 2 or 4"),

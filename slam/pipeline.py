@@ -1,11 +1,8 @@
 """The offline SLAM pipeline: a loop of :class:`~slam.system.Slam` over a sequence's frames, with
-checkpoints, then the run folder: trajectory, odometry, mesh, metrics."""
+checkpoints; :func:`slam.run_folder.writer.save_run` writes its result to the run folder."""
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import logging
 import resource
 import time
@@ -21,15 +18,14 @@ from slam.config import SlamConfig
 from slam.data.base import Frame, Sequence
 from slam.data.checks import check_sequence
 from slam.errors import FrameReadError, SlamError
-from slam.mapping.tsdf import write_mesh
 from slam.records import TrackingStatus
 from slam.results import RunResult
 from slam.run_folder import submaps_dir
 from slam.run_folder.checkpoint import read_checkpoint, write_checkpoint
 from slam.system import FrameResult, Slam
-from slam.trajectory import Trajectory, as_written, atomic_write_text, write_tum
+from slam.trajectory import Trajectory, as_written
 
-__all__ = ["FrameCallback", "ProgressCallback", "RunResult", "run", "save_run"]
+__all__ = ["FrameCallback", "ProgressCallback", "RunResult", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -207,37 +203,3 @@ def evaluate_against_ground_truth(
         "drift_percent": final["drift_percent"],  # NaN (no path) is written as null
     }
     return {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in out.items()}
-
-
-def save_run(result: RunResult, out_dir: str | Path) -> Path:
-    """Write the run folder: trajectory.txt, odometry.txt, mesh.ply, config.yaml, tracking.csv,
-    pose_graph.g2o, loops.json, segment_N.txt (map segments never joined to the main one) and,
-    last, metrics.json, which marks the folder as holding a complete run (any old one is removed
-    first). Every file is written atomically."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "metrics.json").unlink(missing_ok=True)
-    write_tum(out / "trajectory.txt", result.trajectory)
-    write_tum(out / "odometry.txt", result.odometry)
-    for seg, traj in result.segments.items():
-        write_tum(out / f"segment_{seg}.txt", traj)
-    if result.mesh is not None and len(result.mesh.vertices) > 0:
-        write_mesh(out / "mesh.ply", result.mesh)
-    elif result.mesh is not None:
-        log.warning("%s: the map is empty (no surface seen with enough weight); no mesh.ply", out)
-    if result.config is not None:
-        atomic_write_text(out / "config.yaml", result.config.to_yaml())
-    if result.tracking and (result.config is None or result.config.output.save_tracking_log):
-        buf = io.StringIO()
-        rows = [s.as_row() for s in result.tracking]
-        writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-        atomic_write_text(out / "tracking.csv", buf.getvalue())
-    if result.loop_closer is not None:
-        result.loop_closer.graph.write_g2o(out / "pose_graph.g2o")
-        atomic_write_text(
-            out / "loops.json", json.dumps(result.loop_closer.loops_json(), indent=1) + "\n"
-        )
-    atomic_write_text(out / "metrics.json", json.dumps(result.metrics.as_json(), indent=2) + "\n")
-    return out

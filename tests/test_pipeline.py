@@ -7,7 +7,7 @@ import pytest
 
 import slam
 from slam.config import config_from_dict
-from slam.pipeline import save_run
+from slam.run_folder.writer import save_run
 from slam.trajectory import read_tum
 
 FAST = {"tracking": {"downsample": 1}, "dataset": {"max_frames": 80}}

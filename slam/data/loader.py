@@ -5,11 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from slam.data.base import Sequence
+from slam.data.layouts import AUTO, LAYOUT_NAMES
 from slam.data.sevenscenes import SevenScenesSequence, find_depth_files
 from slam.data.tum import TumSequence
 from slam.errors import DatasetError
 
-LAYOUTS = ("auto", "tum", "7scenes")
+#: The valid ``layout`` values (the table is :mod:`slam.data.layouts`).
+LAYOUTS = LAYOUT_NAMES
 
 
 def detect_layout(path: Path) -> str:
@@ -39,7 +41,7 @@ def open_sequence(
         raise DatasetError(f"{path}: sequence folder not found")
     if layout not in LAYOUTS:
         raise DatasetError(f"unknown layout {layout!r}; expected one of {LAYOUTS}")
-    if layout == "auto":
+    if layout == AUTO:
         layout = detect_layout(path)
     if layout == "tum":
         return TumSequence(path, calibration_overrides)

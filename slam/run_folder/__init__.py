@@ -7,6 +7,12 @@
   ``slam eval`` / ``slam report`` refuse a folder without it (:func:`require_complete`).
 - Working state (checkpoints, spilled submaps) lives in the folder while the run goes on and is
   removed once the results are written.
+
+This package is the one owner of the folder: :mod:`~slam.run_folder.layout` names every file
+(no other module spells them), :mod:`~slam.run_folder.writer` writes the results
+(:func:`save_run`), :mod:`~slam.run_folder.reader` reads them back (:class:`RunFolder`),
+:mod:`~slam.run_folder.tracking_csv` converts ``tracking.csv`` both ways and
+:mod:`~slam.run_folder.checkpoint` holds the checkpoints.
 """
 
 from __future__ import annotations
@@ -16,23 +22,66 @@ import tempfile
 from pathlib import Path
 
 from slam.errors import RunFolderError
-
-#: Files a run writes (and ``slam report`` adds); their presence means the folder holds a run.
-RUN_FILES = (
-    "metrics.json",
-    "trajectory.txt",
-    "odometry.txt",
-    "mesh.ply",
-    "config.yaml",
-    "tracking.csv",
-    "loops.json",
-    "pose_graph.g2o",
-    "report.md",
-    "recording.rrd",
+from slam.run_folder.layout import (
+    CHECKPOINT_DIR,
+    CONFIG_FILE,
+    ERROR_PNG,
+    LOOPS_FILE,
+    MESH_FILE,
+    METRICS_FILE,
+    ODOMETRY_FILE,
+    POSE_GRAPH_FILE,
+    RECORDING_FILE,
+    REPORT_FILE,
+    REPORT_PNG_GLOB,
+    RUN_FILES,
+    RUN_GLOBS,
+    SEGMENT_GLOB,
+    SUBMAPS_DIR,
+    TIMING_PNG,
+    TOPVIEW_PNG,
+    TRACKING_FILE,
+    TRAJECTORY_FILE,
+    WORK_DIRS,
+    segment_file,
+    segment_number,
 )
-RUN_GLOBS = ("report_*.png", "segment_*.txt")
-#: Working folders of a run in progress.
-WORK_DIRS = ("checkpoint", "submaps")
+from slam.run_folder.reader import RunFolder
+from slam.run_folder.writer import save_run, write_config
+
+__all__ = [
+    "CHECKPOINT_DIR",
+    "CONFIG_FILE",
+    "ERROR_PNG",
+    "LOOPS_FILE",
+    "MESH_FILE",
+    "METRICS_FILE",
+    "ODOMETRY_FILE",
+    "POSE_GRAPH_FILE",
+    "RECORDING_FILE",
+    "REPORT_FILE",
+    "REPORT_PNG_GLOB",
+    "RUN_FILES",
+    "RUN_GLOBS",
+    "SEGMENT_GLOB",
+    "SUBMAPS_DIR",
+    "TIMING_PNG",
+    "TOPVIEW_PNG",
+    "TRACKING_FILE",
+    "TRAJECTORY_FILE",
+    "WORK_DIRS",
+    "RunFolder",
+    "check_writable",
+    "clear_run_dir",
+    "prepare_run_dir",
+    "remove_work_dirs",
+    "require_complete",
+    "run_outputs",
+    "save_run",
+    "segment_file",
+    "segment_number",
+    "write_config",
+]
 
 
 def run_outputs(run_dir: Path) -> list[Path]:
@@ -92,20 +141,20 @@ def require_complete(run_dir: str | Path) -> Path:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise RunFolderError(f"{run_dir}: run folder not found")
-    if not (run_dir / "metrics.json").is_file():
-        if (run_dir / "checkpoint").is_dir():
+    if not (run_dir / METRICS_FILE).is_file():
+        if (run_dir / CHECKPOINT_DIR).is_dir():
             why = f"the run did not finish; continue it with `slam run --resume {run_dir}`"
-        elif (run_dir / "config.yaml").is_file():
+        elif (run_dir / CONFIG_FILE).is_file():
             why = "the run did not finish (it was stopped or is still running)"
         else:
             why = "it is not a run folder of `slam run`"
-        raise RunFolderError(f"{run_dir}: no metrics.json, so no complete run: {why}")
+        raise RunFolderError(f"{run_dir}: no {METRICS_FILE}, so no complete run: {why}")
     return run_dir
 
 
 def submaps_dir(run_dir: str | Path) -> Path:
     """Where a run's finished submaps wait on disk while it goes on (kept for resuming)."""
-    return Path(run_dir) / "submaps"
+    return Path(run_dir) / SUBMAPS_DIR
 
 
 def remove_work_dirs(run_dir: Path) -> None:

@@ -27,193 +27,53 @@ A run that fails (missing sequence, bad configuration key, crash) is a row with 
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import logging
-import math
 import multiprocessing
-import re
 import sys
 import time
 import traceback
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from slam.config import read_yaml
 from slam.errors import ConfigError, SlamError
-from slam.trajectory import atomic_write_text
+from slam.tools.bench_suite import (
+    DEMO,
+    Suite,
+    SuiteSequence,
+    load_suite,
+    suite_from_dict,
+)
+from slam.tools.bench_tables import (
+    ACCURACY_COLUMNS,
+    COLUMNS,
+    format_csv,
+    format_markdown,
+    write_tables,
+)
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "ACCURACY_COLUMNS",
     "COLUMNS",
     "BenchJob",
     "BenchResult",
+    "DEMO",
     "Suite",
     "SuiteSequence",
     "load_suite",
+    "format_csv",
+    "format_markdown",
     "make_jobs",
     "run_job",
     "run_suite",
     "suite_from_dict",
     "write_tables",
 ]
-
-#: Columns of the results table, in order.
-COLUMNS = (
-    "sequence",
-    "config",
-    "status",
-    "frames",
-    "ate_rmse_m",
-    "ate_rmse_odometry_m",
-    "rpe_trans_rmse_m",
-    "rpe_rot_rmse_deg",
-    "drift_percent",
-    "loops_accepted",
-    "tracking_failures",
-    "fps",
-    "seconds",
-    "peak_rss_mb",
-    "run_dir",
-    "error",
-)
-
-#: Columns that depend only on the input and the code, not on the machine's load (a local and a
-#: Ray run of the same suite must agree on them).
-ACCURACY_COLUMNS = (
-    "frames",
-    "ate_rmse_m",
-    "ate_rmse_odometry_m",
-    "rpe_trans_rmse_m",
-    "rpe_rot_rmse_deg",
-    "drift_percent",
-    "loops_accepted",
-    "tracking_failures",
-)
-
-_MD_FORMATS = {
-    "ate_rmse_m": ".4f",
-    "ate_rmse_odometry_m": ".4f",
-    "rpe_trans_rmse_m": ".4f",
-    "rpe_rot_rmse_deg": ".3f",
-    "drift_percent": ".2f",
-    "fps": ".1f",
-    "seconds": ".1f",
-    "peak_rss_mb": ".0f",
-}
-
-DEMO = "demo"
-
-
-# ----------------------------------------------------------------------------------------------
-# suites
-
-
-@dataclass
-class SuiteSequence:
-    name: str
-    path: str  # a folder, or "demo"
-    max_frames: int | None = None
-
-
-@dataclass
-class Suite:
-    """A parsed suite: ``configs`` maps a name to config overrides (a nested dict) or to the path
-    of a YAML config file."""
-
-    name: str
-    sequences: list[SuiteSequence]
-    configs: dict[str, dict[str, Any] | str] = field(default_factory=lambda: {"default": {}})
-    max_frames: int | None = None
-    base_dir: Path = field(default_factory=Path.cwd)
-
-
-def _safe_name(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(name)).strip("_") or "run"
-
-
-def _max_frames(value: Any, where: str) -> int | None:
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ConfigError(f"{where}: max_frames must be a positive integer, got {value!r}")
-    return value
-
-
-def suite_from_dict(data: Any, base_dir: str | Path = ".", name: str = "suite") -> Suite:
-    """Parse a suite mapping (the YAML's content). Relative paths are relative to ``base_dir``.
-    Raises :class:`ConfigError` on a malformed suite (runs are not checked here)."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"suite {name}: expected a mapping, got {type(data).__name__}")
-    unknown = sorted(set(data) - {"name", "max_frames", "sequences", "configs"})
-    if unknown:
-        raise ConfigError(
-            f"suite {name}: unknown key(s) {unknown}; valid: name, max_frames, sequences, configs"
-        )
-    name = str(data.get("name") or name)
-    raw_seqs = data.get("sequences")
-    if not isinstance(raw_seqs, list) or not raw_seqs:
-        raise ConfigError(
-            f"suite {name}: 'sequences' must be a non-empty list of paths (or 'demo', or "
-            f"{{name, path, max_frames}} mappings)"
-        )
-    seqs: list[SuiteSequence] = []
-    for i, s in enumerate(raw_seqs):
-        where = f"suite {name}, sequences[{i}]"
-        if isinstance(s, str):
-            path, seq_name, mf = s, None, None
-        elif isinstance(s, dict) and isinstance(s.get("path"), str):
-            bad = sorted(set(s) - {"name", "path", "max_frames"})
-            if bad:
-                raise ConfigError(f"{where}: unknown key(s) {bad}; valid: name, path, max_frames")
-            path, seq_name = s["path"], s.get("name")
-            mf = _max_frames(s.get("max_frames"), where)
-        else:
-            raise ConfigError(f"{where}: expected a path or a mapping with 'path', got {s!r}")
-        if seq_name is None:
-            seq_name = DEMO if path == DEMO else Path(path).name or path
-        seqs.append(SuiteSequence(_safe_name(seq_name), path, mf))
-    names = [s.name for s in seqs]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise ConfigError(f"suite {name}: duplicate sequence name(s) {dup}; give each a 'name'")
-    raw_cfgs = data.get("configs")
-    if raw_cfgs is None:
-        raw_cfgs = {"default": {}}
-    if not isinstance(raw_cfgs, dict) or not raw_cfgs:
-        raise ConfigError(
-            f"suite {name}: 'configs' must map a name to config overrides or a YAML file path"
-        )
-    configs: dict[str, dict[str, Any] | str] = {}
-    for cname, c in raw_cfgs.items():
-        if c is None:
-            c = {}
-        if not isinstance(c, (dict, str)):
-            raise ConfigError(
-                f"suite {name}, configs.{cname}: expected overrides (a mapping) or a YAML file "
-                f"path, got {c!r}"
-            )
-        configs[_safe_name(cname)] = c
-    return Suite(
-        name=_safe_name(name),
-        sequences=seqs,
-        configs=configs,
-        max_frames=_max_frames(data.get("max_frames"), f"suite {name}"),
-        base_dir=Path(base_dir),
-    )
-
-
-def load_suite(path: str | Path) -> Suite:
-    """Read a suite YAML file (see the module docstring)."""
-    path = Path(path)
-    data = read_yaml(path, "the suite")
-    return suite_from_dict(data, path.resolve().parent, name=path.stem)
-
 
 # ----------------------------------------------------------------------------------------------
 # jobs
@@ -437,72 +297,6 @@ def _run_ray(
     finally:
         if started:
             ray.shutdown()
-
-
-# ----------------------------------------------------------------------------------------------
-# tables
-
-
-def _md_cell(col: str, v: Any) -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            return "n/a"
-        return format(v, _MD_FORMATS.get(col, ".4g"))
-    text = str(v).replace("|", "\\|").replace("\n", " ")
-    return text if len(text) <= 160 else text[:157] + "..."
-
-
-def format_markdown(rows: list[dict[str, Any]], title: str = "") -> str:
-    """The results table as Markdown (``-`` for no value)."""
-    cols = [c for c in COLUMNS if c != "run_dir"]
-    lines = [f"# Benchmark: {title}", ""] if title else []
-    ok = sum(r["status"] == "ok" for r in rows)
-    lines += [
-        f"{len(rows)} runs, {ok} ok, {len(rows) - ok} failed. ATE/RPE as `evo_ape`/`evo_rpe -a` "
-        "(SE(3)-aligned, RPE over 1 frame); drift: final position error after that alignment in "
-        "% of the ground-truth path length; peak memory: the run process's maximum RSS.",
-        "",
-        "| " + " | ".join(cols) + " |",
-        "|"
-        + "|".join("---:" if c in _MD_FORMATS or c in ACCURACY_COLUMNS else "---" for c in cols)
-        + "|",
-    ]
-    for r in rows:
-        lines.append("| " + " | ".join(_md_cell(c, r.get(c)) for c in cols) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def format_csv(rows: list[dict[str, Any]]) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: ("" if v is None else v) for k, v in r.items()})
-    return buf.getvalue()
-
-
-def _json_value(v: Any) -> Any:
-    return None if isinstance(v, float) and not math.isfinite(v) else v
-
-
-def write_tables(
-    rows: list[dict[str, Any]], out_dir: str | Path, title: str = "", extra: dict | None = None
-) -> dict[str, Path]:
-    """Write ``bench.md``, ``bench.csv`` and ``bench.json`` (atomically) into ``out_dir``."""
-    out = Path(out_dir)
-    paths = {"md": out / "bench.md", "csv": out / "bench.csv", "json": out / "bench.json"}
-    atomic_write_text(paths["md"], format_markdown(rows, title))
-    atomic_write_text(paths["csv"], format_csv(rows))
-    doc = {
-        "suite": title,
-        **(extra or {}),
-        "columns": list(COLUMNS),
-        "rows": [{k: _json_value(r.get(k)) for k in COLUMNS} for r in rows],
-    }
-    atomic_write_text(paths["json"], json.dumps(doc, indent=2) + "\n")
-    return paths
 
 
 @dataclass

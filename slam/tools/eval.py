@@ -1,5 +1,9 @@
-"""Trajectory metrics (ATE / RPE) with numbers identical to evo's; the trajectory plot is in
-:mod:`slam.tools.plots` (:func:`plot_trajectories` and :func:`save_figure` are re-exported here).
+"""Trajectory metrics (ATE / RPE) with numbers identical to evo's, and the evaluation of a run
+folder. The metrics are in :mod:`slam.tools.eval_metrics` (their results in
+:mod:`slam.tools.eval_results`), the ground-truth lookup in :mod:`slam.tools.ground_truth`; all
+are re-exported here. The trajectory plot is in :mod:`slam.tools.plots` (:func:`plot_trajectories`
+and :func:`save_figure` are re-exported here too, imported when first used: importing this module
+loads no plotting).
 
 Everything numeric is delegated to evo's library so that the values match the ``evo_ape`` /
 ``evo_rpe`` command line tools exactly:
@@ -17,33 +21,46 @@ Everything numeric is delegated to evo's library so that the values match the ``
   (``trajectory.txt`` and ``odometry.txt``) against the sequence's ground truth
 
 The ground truth is always evo's *reference* (first file) and the estimate the second, and the
-estimate is the one that gets aligned. Inputs are never modified (evo aligns in place, so this
-module works on copies).
+estimate is the one that gets aligned. Inputs are never modified.
 """
 
 from __future__ import annotations
 
-import copy
 import logging
-import re
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from evo import EvoException
-from evo.core import lie_algebra, metrics, sync
-from evo.core.metrics import PoseRelation, Unit
-from evo.core.trajectory import PoseTrajectory3D
+from slam.errors import RunFolderError
+from slam.run_folder import ODOMETRY_FILE, RunFolder
+from slam.run_folder.reader import same_trajectory
+from slam.tools.eval_metrics import (
+    align_trajectory,
+    ape_per_pose,
+    associate,
+    ate,
+    drift,
+    evaluate,
+    evaluate_files,
+    evaluate_full,
+    parse_delta,
+    rpe,
+)
+from slam.tools.eval_results import DriftResult, EvalResult, RPEResult, Stats, json_ready
+from slam.tools.ground_truth import (
+    GROUND_TRUTH_FILE,
+    load_run_ground_truth,
+    sequence_ground_truth,
+)
 
-from slam.errors import TrajectoryError
-from slam.tools.plots import PlotPlane, plot_plane, plot_trajectories, save_figure
-from slam.trajectory import Trajectory, read_tum
+if TYPE_CHECKING:
+    from slam.tools.plots import PlotPlane, plot_plane, plot_trajectories, save_figure
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "GROUND_TRUTH_FILE",
     "DriftResult",
     "EvalResult",
     "RPEResult",
@@ -68,597 +85,16 @@ __all__ = [
     "sequence_ground_truth",
 ]
 
-#: Minimum number of associated poses for any metric (Umeyama needs 3 points).
-MIN_MATCHES = 3
+#: Names of :mod:`slam.tools.plots` re-exported here, imported on first use.
+_PLOTTING = ("PlotPlane", "plot_plane", "plot_trajectories", "save_figure")
 
-# Tolerance (s) when selecting pose pairs ``delta`` seconds apart: TUM timestamps are written
-# with microsecond resolution, so 30 frames at 30 Hz may come out as 0.999999 s.
-_SECONDS_TOL = 1e-6
 
+def __getattr__(name: str) -> Any:
+    if name in _PLOTTING:
+        from slam.tools import plots
 
-@dataclass
-class Stats:
-    """Error statistics as evo computes them (``std`` is the population standard deviation)."""
-
-    rmse: float
-    mean: float
-    median: float
-    std: float
-    min: float
-    max: float
-
-    def as_dict(self) -> dict[str, float]:
-        return asdict(self)
-
-
-@dataclass
-class RPEResult:
-    """RPE over consecutive pose pairs ``delta`` ``unit`` apart (``unit``: frames, seconds or
-    metres). ``trans`` in metres, ``rot`` in degrees; both ``None`` and ``error`` set when no pair
-    could be formed (e.g. a 1 m delta on a 0.5 m trajectory)."""
-
-    delta: float
-    unit: str
-    pairs: int
-    trans: Stats | None
-    rot: Stats | None
-    error: str | None = None
-
-    @property
-    def label(self) -> str:
-        """Short human label: ``1 frame``, ``5 frames``, ``1 s``, ``0.5 m``."""
-        value = f"{self.delta:g}"
-        if self.unit == "frames":
-            return f"{value} frame" + ("" if self.delta == 1 else "s")
-        return f"{value} {'s' if self.unit == 'seconds' else 'm'}"
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "delta": self.delta,
-            "unit": self.unit,
-            "pairs": self.pairs,
-            "trans_m": None if self.trans is None else self.trans.as_dict(),
-            "rot_deg": None if self.rot is None else self.rot.as_dict(),
-            "error": self.error,
-        }
-
-
-@dataclass
-class DriftResult:
-    """Final-position drift: ``final_error_m`` is the distance between the last associated
-    estimated position (after ``alignment``) and the ground-truth position at the same time,
-    ``path_length_m`` the length of the associated ground-truth path (sum of distances between
-    consecutive associated poses) and ``percent = 100 * final_error_m / path_length_m`` (NaN for a
-    zero-length path)."""
-
-    final_error_m: float
-    path_length_m: float
-    percent: float
-    alignment: str
-    final_timestamp: float
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-
-@dataclass
-class EvalResult:
-    """Everything :func:`evaluate_full` computes for one estimate against one ground truth.
-
-    ``alignment`` is how the estimate was aligned for ATE and RPE: ``se3`` (Umeyama, evo ``-a``),
-    ``sim3`` (``-as``), ``scale`` (``-s``) or ``none``; ``scale`` is the Sim(3) scale applied
-    (1 unless corrected). ``rpe`` has one entry per requested delta, in order.
-    """
-
-    matched_poses: int
-    alignment: str
-    scale: float
-    max_diff: float
-    ate: Stats
-    rpe: list[RPEResult]
-    drift: DriftResult
-
-    def headline(self) -> dict[str, Any]:
-        """The flat dict of :func:`evaluate` (RPE from the first delta; ``None`` if it failed)."""
-        first = self.rpe[0] if self.rpe else None
-        return {
-            "ate_rmse_m": self.ate.rmse,
-            "ate_mean_m": self.ate.mean,
-            "ate_median_m": self.ate.median,
-            "ate_std_m": self.ate.std,
-            "ate_max_m": self.ate.max,
-            "rpe_trans_rmse_m": None if first is None or first.trans is None else first.trans.rmse,
-            "rpe_rot_rmse_deg": None if first is None or first.rot is None else first.rot.rmse,
-            "matched_poses": self.matched_poses,
-            "drift_percent": self.drift.percent,
-            "path_length_m": self.drift.path_length_m,
-        }
-
-    def as_dict(self) -> dict[str, Any]:
-        """Headline keys (as :func:`evaluate`, plus ``ate_min_m``) and the full detail nested
-        under ``ate``, ``rpe`` and ``drift``; JSON-ready (NaN becomes ``None``)."""
-        out: dict[str, Any] = self.headline()
-        out["ate_min_m"] = self.ate.min
-        out["drift_final_error_m"] = self.drift.final_error_m
-        out.update(
-            alignment=self.alignment,
-            scale=self.scale,
-            max_diff_s=self.max_diff,
-            ate=self.ate.as_dict(),
-            rpe=[r.as_dict() for r in self.rpe],
-            drift=self.drift.as_dict(),
-        )
-        return _json_ready(out)
-
-
-def _json_ready(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
-
-
-# ----------------------------------------------------------------------------------------------
-# conversions
-
-
-def _to_evo(traj: Trajectory, what: str) -> PoseTrajectory3D:
-    """Copy a :class:`Trajectory` into an evo ``PoseTrajectory3D`` (never shares memory)."""
-    if not isinstance(traj, Trajectory):
-        raise TrajectoryError(f"{what}: expected a slam.trajectory.Trajectory, got {type(traj)!r}")
-    if len(traj) == 0:
-        raise TrajectoryError(f"{what} trajectory is empty")
-    if not np.all(np.isfinite(traj.timestamps)):
-        raise TrajectoryError(f"{what} trajectory has non-finite timestamps")
-    if not np.all(np.isfinite(traj.poses)):
-        bad = int(np.flatnonzero(~np.isfinite(traj.poses).reshape(len(traj), -1).all(axis=1))[0])
-        raise TrajectoryError(
-            f"{what} trajectory has a non-finite pose (first at index {bad}, "
-            f"t={traj.timestamps[bad]:.6f})"
-        )
-    poses = np.array(traj.poses, dtype=float, copy=True)
-    return PoseTrajectory3D(
-        poses_se3=list(poses), timestamps=np.array(traj.timestamps, dtype=float), name=what
-    )
-
-
-def _from_evo(traj: PoseTrajectory3D) -> Trajectory:
-    return Trajectory(np.array(traj.timestamps, dtype=float), np.array(traj.poses_se3, dtype=float))
-
-
-def _stats(metric: metrics.PE) -> Stats:
-    s = metric.get_all_statistics()
-    return Stats(
-        rmse=float(s["rmse"]),
-        mean=float(s["mean"]),
-        median=float(s["median"]),
-        std=float(s["std"]),
-        min=float(s["min"]),
-        max=float(s["max"]),
-    )
-
-
-def _range(stamps: np.ndarray) -> str:
-    return f"[{stamps.min():.6f}, {stamps.max():.6f}] s ({len(stamps)} poses)"
-
-
-# ----------------------------------------------------------------------------------------------
-# association and alignment (evo objects)
-
-
-def _associate_evo(
-    gt: Trajectory, est: Trajectory, max_diff: float
-) -> tuple[PoseTrajectory3D, PoseTrajectory3D]:
-    if not (np.isfinite(max_diff) and max_diff >= 0):
-        raise TrajectoryError(f"max_diff must be a non-negative number of seconds, got {max_diff}")
-    ref = _to_evo(gt, "ground truth")
-    est_e = _to_evo(est, "estimate")
-    try:
-        ref_s, est_s = sync.associate_trajectories(ref, est_e, max_diff=max_diff)
-        matched = ref_s.num_poses
-    except sync.SyncException:
-        matched = 0
-    if matched < MIN_MATCHES:
-        possible = min(len(gt), len(est))
-        gts, ests = gt.timestamps, est.timestamps
-        overlap = min(gts.max(), ests.max()) - max(gts.min(), ests.min())
-        hint = ""
-        if overlap < -max_diff:
-            hint = (
-                " The time ranges do not overlap: are both trajectories in the same clock "
-                "(e.g. one uses sequence-relative seconds, the other Unix time)?"
-            )
-        raise TrajectoryError(
-            f"only {matched} of {possible} possible poses could be associated by timestamp "
-            f"(need at least {MIN_MATCHES}) with max_diff={max_diff} s: "
-            f"ground truth {_range(gts)}, estimate {_range(ests)}.{hint} "
-            f"Try a larger max_diff (CLI option --t-max-diff)."
-        )
-    logger.debug(
-        "associated %d of %d possible poses (max_diff=%g s)",
-        matched,
-        min(len(gt), len(est)),
-        max_diff,
-    )
-    return ref_s, est_s
-
-
-def _align_evo(
-    ref: PoseTrajectory3D, est: PoseTrajectory3D, align: bool, correct_scale: bool
-) -> np.ndarray:
-    """Align ``est`` to ``ref`` in place exactly as evo_ape/evo_rpe do; returns the Sim(3) used."""
-    only_scale = correct_scale and not align
-    if not (align or correct_scale):
-        return np.eye(4)
-    try:
-        r, t, s = est.align(ref, correct_scale, only_scale)
-    except EvoException as exc:
-        raise TrajectoryError(
-            f"cannot align the estimate to the ground truth ({exc}); the estimated or ground "
-            f"truth positions are degenerate (all identical or collinear?)"
-        ) from exc
-    logger.debug("alignment: scale=%.6f t=%s", s, np.round(t, 6))
-    if only_scale:
-        return lie_algebra.sim3(np.eye(3), np.zeros(3), s)
-    return lie_algebra.sim3(r, t, s)
-
-
-def _ape_stats(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> Stats:
-    metric = metrics.APE(PoseRelation.translation_part)
-    metric.process_data((ref, est))
-    return _stats(metric)
-
-
-_UNITS = {
-    "frames": Unit.frames,
-    "frame": Unit.frames,
-    "f": Unit.frames,
-    "meters": Unit.meters,
-    "metres": Unit.meters,
-    "meter": Unit.meters,
-    "metre": Unit.meters,
-    "m": Unit.meters,
-    "seconds": Unit.seconds,
-    "second": Unit.seconds,
-    "sec": Unit.seconds,
-    "s": Unit.seconds,
-}
-
-
-#: Canonical names of the RPE delta units (evo's ``Unit.meters`` is written "metres" here).
-_UNIT_NAMES = {Unit.frames: "frames", Unit.seconds: "seconds", Unit.meters: "metres"}
-_UNIT_SHORT = {Unit.frames: "f", Unit.seconds: "s", Unit.meters: "m"}
-
-
-def _parse_unit(delta_unit: str | Unit) -> Unit:
-    if isinstance(delta_unit, Unit):
-        unit = delta_unit
-    else:
-        unit = _UNITS.get(str(delta_unit).lower())
-    if unit not in (Unit.frames, Unit.meters, Unit.seconds):
-        raise TrajectoryError(
-            f"unsupported RPE delta_unit {delta_unit!r}: use 'frames', 'meters' or 'seconds'"
-        )
-    return unit
-
-
-def parse_delta(spec: str | float | tuple[float, str]) -> tuple[float, str]:
-    """An RPE delta as ``(value, unit)`` with unit ``frames``, ``seconds`` or ``metres``.
-
-    Accepts ``(1, "frames")``, a bare number (frames) or text such as ``"1f"``, ``"10 frames"``,
-    ``"0.5s"``, ``"1m"``, ``"2 metres"``.
-    """
-    if isinstance(spec, tuple):
-        value, unit = spec
-        return float(value), _UNIT_NAMES[_parse_unit(unit)]
-    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
-        return float(spec), "frames"
-    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([A-Za-z]*)\s*", str(spec))
-    if m is None:
-        raise TrajectoryError(
-            f"cannot read RPE delta {spec!r}: write a number and a unit, e.g. '1f' (frames), "
-            f"'1s' (seconds) or '0.5m' (metres)"
-        )
-    unit = m.group(2) or "frames"
-    return float(m.group(1)), _UNIT_NAMES[_parse_unit(unit)]
-
-
-def _ids_by_time(stamps: np.ndarray, delta: float) -> list[int]:
-    """Consecutive pose ids at least ``delta`` seconds apart (like evo's by-path selection)."""
-    ids = [0]
-    for i in range(1, len(stamps)):
-        if stamps[i] - stamps[ids[-1]] >= delta - _SECONDS_TOL:
-            ids.append(i)
-    return ids
-
-
-def _rpe_metrics(
-    ref: PoseTrajectory3D, est: PoseTrajectory3D, delta: float, unit: Unit
-) -> tuple[Stats, Stats, int]:
-    """(translation stats m, rotation stats deg, number of pose pairs) of evo's RPE."""
-    if not (np.isfinite(delta) and delta > 0):
-        raise TrajectoryError(f"RPE delta must be a positive number, got {delta}")
-    if unit is Unit.frames and float(delta) != int(delta):
-        raise TrajectoryError(f"RPE delta must be a whole number of frames, got {delta}")
-    if unit is Unit.seconds:
-        # evo has no time-based pair selection: pick the ids here (on the estimate's stamps, as
-        # evo picks path-based pairs on the estimate), then evo's consecutive-frame RPE on the
-        # reduced trajectories evaluates exactly those pairs.
-        ids = _ids_by_time(np.asarray(est.timestamps), float(delta))
-        if len(ids) < 2:
-            raise TrajectoryError(
-                f"RPE delta = {delta} s is longer than the associated trajectory "
-                f"({est.timestamps[-1] - est.timestamps[0]:.3f} s): use a smaller delta"
-            )
-        ref, est = copy.deepcopy(ref), copy.deepcopy(est)
-        ref.reduce_to_ids(ids)
-        est.reduce_to_ids(ids)
-        delta, unit = 1, Unit.frames
-    out = []
-    pairs = 0
-    for relation in (PoseRelation.translation_part, PoseRelation.rotation_angle_deg):
-        metric = metrics.RPE(relation, delta=delta, delta_unit=unit, all_pairs=False)
-        try:
-            metric.process_data((ref, est))
-        except EvoException as exc:
-            raise TrajectoryError(
-                f"RPE failed for delta = {delta} {unit.value} on {est.num_poses} associated poses "
-                f"({est.path_length:.3f} m of path): {exc}"
-            ) from exc
-        out.append(_stats(metric))
-        pairs = len(metric.error)
-    return out[0], out[1], pairs
-
-
-def _rpe_stats(
-    ref: PoseTrajectory3D, est: PoseTrajectory3D, delta: float, unit: Unit
-) -> tuple[Stats, Stats]:
-    t, r, _ = _rpe_metrics(ref, est, delta, unit)
-    return t, r
-
-
-# ----------------------------------------------------------------------------------------------
-# public API
-
-
-def associate(
-    gt: Trajectory, est: Trajectory, max_diff: float = 0.01
-) -> tuple[Trajectory, Trajectory]:
-    """Match poses by nearest timestamp (evo's ``associate_trajectories``).
-
-    Returns copies ``(gt_matched, est_matched)`` of equal length. Raises :class:`TrajectoryError`
-    when fewer than 3 poses match.
-    """
-    ref, est_s = _associate_evo(gt, est, max_diff)
-    return _from_evo(ref), _from_evo(est_s)
-
-
-def ate(
-    gt: Trajectory,
-    est: Trajectory,
-    align: bool = True,
-    correct_scale: bool = False,
-    max_diff: float = 0.01,
-) -> Stats:
-    """Absolute trajectory error, translation part in metres.
-
-    ``align=True`` == ``evo_ape tum GT EST -a`` (SE(3) Umeyama); with ``correct_scale=True`` ==
-    ``-as`` (Sim(3)); ``align=False, correct_scale=True`` == ``-s`` (scale only).
-    """
-    ref, est_s = _associate_evo(gt, est, max_diff)
-    _align_evo(ref, est_s, align, correct_scale)
-    return _ape_stats(ref, est_s)
-
-
-def rpe(
-    gt: Trajectory,
-    est: Trajectory,
-    delta: float = 1,
-    delta_unit: str = "frames",
-    align: bool = True,
-    max_diff: float = 0.01,
-    correct_scale: bool = False,
-) -> tuple[Stats, Stats]:
-    """Relative pose error over consecutive pairs ``delta`` apart.
-
-    Returns ``(translation stats in metres, rotation stats in degrees)``, equal to
-    ``evo_rpe tum GT EST -a --delta 1 --delta_unit f`` with ``-r trans_part`` and ``-r angle_deg``.
-    ``delta_unit`` is ``"frames"``, ``"meters"`` (evo's ``Unit.meters``: travelled path of the
-    estimate) or ``"seconds"`` (not in evo: pairs at least ``delta`` s apart on the estimate's
-    timestamps, then evo's RPE on those pairs).
-    """
-    unit = _parse_unit(delta_unit)
-    ref, est_s = _associate_evo(gt, est, max_diff)
-    _align_evo(ref, est_s, align, correct_scale)
-    return _rpe_stats(ref, est_s, delta, unit)
-
-
-def align_trajectory(
-    gt: Trajectory, est: Trajectory, correct_scale: bool = False, max_diff: float = 0.01
-) -> Trajectory:
-    """The whole estimate (all its poses) mapped by the Umeyama alignment that :func:`ate` uses.
-
-    Handy for plotting an estimate over the ground truth.
-    """
-    ref, est_s = _associate_evo(gt, est, max_diff)
-    S = _align_evo(ref, est_s, True, correct_scale)
-    s = float(np.cbrt(np.linalg.det(S[:3, :3])))
-    R, t = S[:3, :3] / s, S[:3, 3]
-    poses = np.array(est.poses, dtype=float, copy=True)
-    out = np.empty_like(poses)
-    out[:, :3, :3] = R @ poses[:, :3, :3]
-    out[:, :3, 3] = s * poses[:, :3, 3] @ R.T + t
-    out[:, 3, :] = (0.0, 0.0, 0.0, 1.0)
-    return Trajectory(np.array(est.timestamps, copy=True), out)
-
-
-def _alignment_name(align: bool, correct_scale: bool) -> str:
-    if align:
-        return "sim3" if correct_scale else "se3"
-    return "scale" if correct_scale else "none"
-
-
-_DRIFT_ALIGNMENTS = ("se3", "sim3", "scale", "none", "origin")
-
-
-def _drift_evo(ref: PoseTrajectory3D, est: PoseTrajectory3D, alignment: str) -> DriftResult:
-    """Drift of an associated (and, unless ``origin``, already aligned) estimate."""
-    if alignment == "origin":
-        est = copy.deepcopy(est)
-        est.align_origin(ref)
-    path = float(ref.path_length)
-    final_err = float(np.linalg.norm(est.positions_xyz[-1] - ref.positions_xyz[-1]))
-    if path > 0:
-        pct = final_err / path * 100.0
-    else:
-        logger.warning("ground truth path length is zero: drift percent is undefined (NaN)")
-        pct = float("nan")
-    return DriftResult(
-        final_error_m=final_err,
-        path_length_m=path,
-        percent=float(pct),
-        alignment=alignment,
-        final_timestamp=float(est.timestamps[-1]),
-    )
-
-
-def drift(
-    gt: Trajectory, est: Trajectory, alignment: str = "se3", max_diff: float = 0.01
-) -> DriftResult:
-    """Final-position drift of ``est`` in % of the ground-truth path length.
-
-    The poses are associated by timestamp (as :func:`associate`); the estimate is then aligned to
-    the ground truth by ``alignment``: ``se3`` (the Umeyama fit over all associated positions that
-    :func:`ate` uses, evo ``-a``), ``sim3`` (``-as``), ``scale`` (``-s``), ``origin`` (the rigid
-    motion that puts the first associated estimated pose exactly on the first ground-truth pose,
-    evo ``--align_origin``: all the error accumulated from the start shows at the end) or ``none``.
-    ``final_error_m`` is the distance between the last associated positions and ``percent`` =
-    100 * ``final_error_m`` / ground-truth path length over the associated poses.
-    """
-    if alignment not in _DRIFT_ALIGNMENTS:
-        raise TrajectoryError(
-            f"unknown drift alignment {alignment!r}; use one of {', '.join(_DRIFT_ALIGNMENTS)}"
-        )
-    ref, est_s = _associate_evo(gt, est, max_diff)
-    if alignment in ("se3", "sim3", "scale"):
-        _align_evo(ref, est_s, alignment != "scale", alignment != "se3")
-    return _drift_evo(ref, est_s, alignment)
-
-
-def ape_per_pose(
-    gt: Trajectory,
-    est: Trajectory,
-    align: bool = True,
-    correct_scale: bool = False,
-    max_diff: float = 0.01,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pose translation error (m) after the alignment :func:`ate` uses.
-
-    Returns ``(timestamps of the associated estimated poses, errors)``; the errors are evo's APE
-    ``error`` array, so their statistics are exactly :func:`ate`'s.
-    """
-    ref, est_s = _associate_evo(gt, est, max_diff)
-    _align_evo(ref, est_s, align, correct_scale)
-    metric = metrics.APE(PoseRelation.translation_part)
-    metric.process_data((ref, est_s))
-    return np.array(est_s.timestamps, dtype=float), np.array(metric.error, dtype=float)
-
-
-def evaluate_full(
-    gt: Trajectory,
-    est: Trajectory,
-    max_diff: float = 0.01,
-    align: bool = True,
-    correct_scale: bool = False,
-    rpe_deltas: Sequence[str | float | tuple[float, str]] = ((1, "frames"),),
-    drift_alignment: str | None = None,
-) -> EvalResult:
-    """ATE, RPE for each of ``rpe_deltas`` and drift of ``est`` against ``gt``.
-
-    One association and one alignment (as :func:`ate`: SE(3) Umeyama by default, Sim(3) with
-    ``correct_scale``) serve every metric, so the numbers equal :func:`ate`, :func:`rpe` and
-    :func:`drift` called separately with the same options. ``rpe_deltas`` entries are anything
-    :func:`parse_delta` reads (``"1f"``, ``"1s"``, ``"0.5m"``, ``(1, "frames")``); a delta that
-    yields no pose pair is recorded with its ``error`` instead of raising. ``drift_alignment``
-    ``None`` uses the ATE alignment, else any :func:`drift` alignment (e.g. ``"origin"``).
-    """
-    deltas = [parse_delta(d) for d in rpe_deltas]
-    if drift_alignment is not None and drift_alignment not in _DRIFT_ALIGNMENTS:
-        raise TrajectoryError(
-            f"unknown drift alignment {drift_alignment!r}; "
-            f"use one of {', '.join(_DRIFT_ALIGNMENTS)}"
-        )
-    ref, est_s = _associate_evo(gt, est, max_diff)
-    unaligned = copy.deepcopy(est_s) if drift_alignment is not None else None
-    S = _align_evo(ref, est_s, align, correct_scale)
-    scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
-    a = _ape_stats(ref, est_s)
-    rpes: list[RPEResult] = []
-    for value, unit_name in deltas:
-        try:
-            t, r, pairs = _rpe_metrics(ref, est_s, value, _parse_unit(unit_name))
-            rpes.append(RPEResult(value, unit_name, pairs, t, r))
-        except TrajectoryError as exc:
-            logger.warning("RPE over %g %s: %s", value, unit_name, exc)
-            rpes.append(RPEResult(value, unit_name, 0, None, None, str(exc)))
-    name = _alignment_name(align, correct_scale)
-    if drift_alignment is None or drift_alignment == name:
-        dr = _drift_evo(ref, est_s, name)
-    else:
-        assert unaligned is not None
-        if drift_alignment in ("se3", "sim3", "scale"):
-            _align_evo(ref, unaligned, drift_alignment != "scale", drift_alignment != "se3")
-        dr = _drift_evo(ref, unaligned, drift_alignment)
-    result = EvalResult(
-        matched_poses=int(ref.num_poses),
-        alignment=name,
-        scale=scale,
-        max_diff=float(max_diff),
-        ate=a,
-        rpe=rpes,
-        drift=dr,
-    )
-    first = rpes[0] if rpes else None
-    logger.info(
-        "ATE rmse %.4f m, RPE %s, %d poses matched, drift %.2f %%",
-        a.rmse,
-        "n/a"
-        if first is None or first.trans is None or first.rot is None
-        else f"{first.trans.rmse:.4f} m / {first.rot.rmse:.3f} deg",
-        result.matched_poses,
-        dr.percent,
-    )
-    return result
-
-
-def evaluate(
-    gt: Trajectory,
-    est: Trajectory,
-    max_diff: float = 0.01,
-    align: bool = True,
-    correct_scale: bool = False,
-) -> dict[str, Any]:
-    """All headline numbers in one flat dict.
-
-    Keys: ``ate_rmse_m, ate_mean_m, ate_median_m, ate_std_m, ate_max_m`` (as :func:`ate`),
-    ``rpe_trans_rmse_m, rpe_rot_rmse_deg`` (as :func:`rpe` with delta = 1 frame, same alignment),
-    ``matched_poses``, ``path_length_m`` (of the associated ground truth) and ``drift_percent``
-    (error of the last associated position after the same alignment / ``path_length_m`` * 100,
-    see :func:`drift`; NaN for a zero-length path). :func:`evaluate_full` has the full detail.
-    """
-    return evaluate_full(gt, est, max_diff, align, correct_scale).headline()
-
-
-def evaluate_files(gt_path: str | Path, est_path: str | Path, **kw: Any) -> dict[str, Any]:
-    """:func:`evaluate` on two TUM files (read with :func:`slam.trajectory.read_tum`)."""
-    return evaluate(read_tum(gt_path), read_tum(est_path), **kw)
-
-
-# ----------------------------------------------------------------------------------------------
-# run folders
+        return getattr(plots, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass
@@ -688,144 +124,20 @@ class RunEvaluation:
         }
         if self.odometry is not None:
             out["ate_rmse_change_m"] = self.final.ate.rmse - self.odometry.ate.rmse
-        return _json_ready(out)
+        return json_ready(out)
 
 
-def _read_run_config(run_dir: Path) -> dict[str, Any]:
-    import yaml
-
-    path = run_dir / "config.yaml"
-    if not path.is_file():
-        return {}
+def _loops_accepted(run: RunFolder) -> int | None:
+    """``loops_accepted`` of the run's metrics (``None`` when absent or unreadable)."""
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise TrajectoryError(f"{path}: cannot read the run's config: {exc}") from exc
-    return data if isinstance(data, dict) else {}
-
-
-#: The ground-truth file of a sequence folder (TUM layout; the one evo is given).
-GROUND_TRUTH_FILE = "groundtruth.txt"
-
-
-def sequence_ground_truth(
-    seq_dir: str | Path,
-    sequence: Any = None,
-    layout: str = "auto",
-    calibration: dict[str, Any] | None = None,
-) -> tuple[Trajectory | None, str]:
-    """The ground truth runs of a sequence are evaluated against, and where it came from.
-
-    One definition for ``metrics.json`` (:func:`slam.run`) and ``slam eval RUN_DIR``
-    (:func:`load_run_ground_truth`), evo's: the folder's ``groundtruth.txt`` as it is (raw
-    poses, associated with the estimate by nearest timestamp within ``max_diff`` when
-    evaluating, as ``evo_ape`` does; not interpolated at the frame times), else the sequence
-    loader's ground truth (e.g. 7-Scenes ``*.pose.txt``; ``sequence`` when already open, else
-    the folder is opened with ``layout`` and ``calibration``). ``(None, why)`` when there is
-    none; unreadable files raise :class:`slam.errors.SlamError` subclasses.
-    """
-    seq_dir = Path(seq_dir)
-    gt_file = seq_dir / GROUND_TRUTH_FILE
-    if gt_file.is_file():
-        return read_tum(gt_file), str(gt_file)
-    if sequence is None:
-        from slam.data.loader import open_sequence
-
-        sequence = open_sequence(seq_dir, layout, calibration)
-    gt = sequence.ground_truth
-    if gt is None or len(gt) == 0:
-        why = f"{seq_dir}: the sequence has no ground truth (no {GROUND_TRUTH_FILE} or poses)"
-        return None, why
-    return gt, f"{seq_dir} ({type(sequence).__name__} ground truth)"
-
-
-def load_run_ground_truth(
-    run_dir: str | Path, gt_path: str | Path | None = None
-) -> tuple[Trajectory, str]:
-    """The ground truth of the sequence a run folder was made from, and where it was found.
-
-    ``gt_path`` (a TUM file) wins when given. Otherwise the sequence folder is ``dataset.path`` in
-    the run's ``config.yaml``, else ``sequence`` in its ``metrics.json`` (relative paths: to the
-    working directory, then to the run folder), and its ground truth is
-    :func:`sequence_ground_truth` (``groundtruth.txt``, the file evo would read, else the sequence
-    loader's), the same that ``slam run`` evaluated ``metrics.json`` against.
-    Raises :class:`TrajectoryError` saying what is missing and suggesting ``--gt``.
-    """
-    run_dir = Path(run_dir)
-    if gt_path is not None:
-        return read_tum(gt_path), str(gt_path)
-    cfg = _read_run_config(run_dir)
-    dataset = cfg.get("dataset") or {}
-    if not isinstance(dataset, dict):
-        dataset = {}
-    seq_path = dataset.get("path") or _run_metrics(run_dir).get("sequence")
-    if not seq_path:
-        raise TrajectoryError(
-            f"{run_dir}: no ground truth: neither config.yaml (dataset.path) nor metrics.json "
-            f"(sequence) names the sequence folder; give the ground-truth file with --gt FILE"
-        )
-    candidates = [Path(seq_path).expanduser()]
-    if not candidates[0].is_absolute():
-        candidates.append(run_dir / seq_path)
-    seq_dir = next((c for c in candidates if c.is_dir()), None)
-    if seq_dir is None:
-        raise TrajectoryError(
-            f"{run_dir}: the sequence folder recorded for the run ({seq_path}) does not exist "
-            f"here; give the ground-truth file with --gt FILE"
-        )
-    from slam.errors import SlamError
-
-    try:
-        gt, source = sequence_ground_truth(
-            seq_dir,
-            layout=dataset.get("layout") or "auto",
-            calibration=dataset.get("calibration") or None,
-        )
-    except TrajectoryError:
-        raise
-    except SlamError as exc:
-        raise TrajectoryError(
-            f"{run_dir}: cannot read the ground truth of {seq_dir}: {exc}; "
-            f"give the ground-truth file with --gt FILE"
-        ) from exc
-    if gt is None:
-        raise TrajectoryError(f"{source}; give the ground-truth file with --gt FILE")
-    return gt, source
-
-
-def _run_metrics(run_dir: Path) -> dict[str, Any]:
-    """The run's metrics.json, or ``{}`` when absent or unreadable."""
-    import json
-
-    try:
-        data = json.loads((run_dir / "metrics.json").read_text())
-    except (OSError, ValueError):
-        return {}
-    return data if isinstance(data, dict) else {}
-
-
-def _loops_accepted(run_dir: Path) -> int | None:
-    value = _run_metrics(run_dir).get("loops_accepted")
+        value = run.metrics().get("loops_accepted")
+    except RunFolderError:
+        return None
     return int(value) if isinstance(value, (int, float)) else None
 
 
-def run_trajectory_path(run_dir: str | Path) -> Path:
-    """``RUN_DIR/trajectory.txt`` of a complete run; raises :class:`RunFolderError` when the
-    folder holds no complete run (no ``metrics.json``: killed, still running, or not a run
-    folder) and :class:`TrajectoryError` when the file is missing."""
-    from slam.run_folder import require_complete
-
-    run_dir = require_complete(run_dir)
-    traj_path = run_dir / "trajectory.txt"
-    if not traj_path.is_file():
-        raise TrajectoryError(
-            f"{run_dir}: no trajectory.txt in the run folder (is it the --out folder of `slam run`?)"
-        )
-    return traj_path
-
-
 def evaluate_run(
-    run_dir: str | Path,
+    run_dir: str | Path | RunFolder,
     gt_path: str | Path | None = None,
     max_diff: float = 0.01,
     correct_scale: bool = False,
@@ -834,11 +146,12 @@ def evaluate_run(
 ) -> RunEvaluation:
     """Evaluate a run folder's ``trajectory.txt`` and ``odometry.txt`` against its ground truth
     (found by :func:`load_run_ground_truth`), each with its own alignment, same options as
-    :func:`evaluate_full`."""
-    run_dir = Path(run_dir)
-    traj_path = run_trajectory_path(run_dir)
-    gt, source = load_run_ground_truth(run_dir, gt_path)
-    est = read_tum(traj_path)
+    :func:`evaluate_full`. Raises :class:`RunFolderError` when the folder holds no complete run
+    and :class:`slam.errors.TrajectoryError` when its trajectory is missing."""
+    run = run_dir if isinstance(run_dir, RunFolder) else RunFolder(run_dir)
+    run.require_complete()
+    est = run.trajectory()
+    gt, source = load_run_ground_truth(run, gt_path)
     kw: dict[str, Any] = dict(
         max_diff=max_diff,
         correct_scale=correct_scale,
@@ -846,15 +159,12 @@ def evaluate_run(
         drift_alignment=drift_alignment,
     )
     final = evaluate_full(gt, est, **kw)
-    odo_path = run_dir / "odometry.txt"
+    odo = run.odometry()
     odometry = None
     identical = True
-    if odo_path.is_file():
-        odo = read_tum(odo_path)
-        identical = len(odo) == len(est) and bool(
-            np.array_equal(odo.timestamps, est.timestamps) and np.array_equal(odo.poses, est.poses)
-        )
+    if odo is not None:
+        identical = same_trajectory(odo, est)
         odometry = final if identical else evaluate_full(gt, odo, **kw)
     else:
-        logger.warning("%s: no odometry.txt; only the final trajectory is evaluated", run_dir)
-    return RunEvaluation(run_dir, source, final, odometry, identical, _loops_accepted(run_dir))
+        logger.warning("%s: no %s; only the final trajectory is evaluated", run.path, ODOMETRY_FILE)
+    return RunEvaluation(run.path, source, final, odometry, identical, _loops_accepted(run))

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from slam.errors import SlamError
+from slam.run_folder import MESH_FILE, RunFolder
 from slam.trajectory import Trajectory
 
 if TYPE_CHECKING:
@@ -217,6 +218,36 @@ def _legend(img: np.ndarray, items: list[tuple[str, tuple[int, int, int]]]) -> N
         y += 26
 
 
+def _run_overlay(
+    run: RunFolder, traj: Trajectory, odometry: bool
+) -> tuple[Overlay, list[tuple[str, tuple[int, int, int]]]]:
+    """The overlay of a run (trajectories, keyframes, accepted loop edges) and its legend."""
+    from slam.tools.report import loop_edges
+
+    ov = Overlay()
+    legend = []
+    odo = run.odometry() if odometry else None
+    if odo is not None:
+        same = len(odo) == len(traj) and np.allclose(odo.poses, traj.poses)
+        if not same:
+            ov.lines.append((odo.positions, ODOMETRY_BGR, 2))
+            legend.append(("odometry (before loop closure)", ODOMETRY_BGR))
+    ov.lines.append((traj.positions, FINAL_BGR, 2))
+    legend.append(("final trajectory", FINAL_BGR))
+    statuses = run.tracking()
+    if statuses is not None:
+        kf_t = {round(s.timestamp, 6) for s in statuses if s.keyframe and s.ok}
+        kf = [p for t, p in zip(traj.timestamps, traj.positions) if round(float(t), 6) in kf_t]
+        if kf:
+            ov.points.append((np.array(kf), KEYFRAME_BGR, 4))
+            legend.append((f"keyframes ({len(kf)})", KEYFRAME_BGR))
+    edges = loop_edges(traj, run.accepted_loops())
+    if edges:
+        ov.segments = edges
+        legend.append((f"accepted loop edges ({len(edges)})", LOOP_BGR))
+    return ov, legend
+
+
 def render_run(
     run_dir: str | Path,
     png: str | Path,
@@ -228,47 +259,16 @@ def render_run(
     """Render a run folder's ``mesh.ply`` with its final trajectory (orange), odometry (blue,
     when loop closure changed it), keyframes of the final trajectory (green) and accepted loop
     edges (red) into ``png``; view :func:`default_view` unless ``T_world_cam`` is given."""
-    import json
-
     import cv2
     import open3d as o3d
 
-    from slam.tools.report import loop_edges
-    from slam.trajectory import read_tum
-
-    run_dir = Path(run_dir)
-    if not (run_dir / "mesh.ply").is_file():
-        raise SlamError(f"{run_dir}: no mesh.ply to render (was output.save_mesh off?)")
-    mesh = o3d.io.read_triangle_mesh(str(run_dir / "mesh.ply"))
-    traj = read_tum(run_dir / "trajectory.txt")
-    ov = Overlay()
-    legend = []
-    odo_path = run_dir / "odometry.txt"
-    if odometry and odo_path.is_file():
-        odo = read_tum(odo_path)
-        same = len(odo) == len(traj) and np.allclose(odo.poses, traj.poses)
-        if not same:
-            ov.lines.append((odo.positions, ODOMETRY_BGR, 2))
-            legend.append(("odometry (before loop closure)", ODOMETRY_BGR))
-    ov.lines.append((traj.positions, FINAL_BGR, 2))
-    legend.append(("final trajectory", FINAL_BGR))
-    csv_path = run_dir / "tracking.csv"
-    if csv_path.is_file():
-        from slam.tools.viewer import read_tracking_statuses
-
-        kf_t = {
-            round(s.timestamp, 6) for s in read_tracking_statuses(csv_path) if s.keyframe and s.ok
-        }
-        kf = [p for t, p in zip(traj.timestamps, traj.positions) if round(float(t), 6) in kf_t]
-        if kf:
-            ov.points.append((np.array(kf), KEYFRAME_BGR, 4))
-            legend.append((f"keyframes ({len(kf)})", KEYFRAME_BGR))
-    if (run_dir / "loops.json").is_file():
-        cands = json.loads((run_dir / "loops.json").read_text()).get("candidates") or []
-        edges = loop_edges(traj, [c for c in cands if c.get("accepted")])
-        if edges:
-            ov.segments = edges
-            legend.append((f"accepted loop edges ({len(edges)})", LOOP_BGR))
+    run = RunFolder(run_dir)
+    mesh_path = run.mesh_path()
+    if mesh_path is None:
+        raise SlamError(f"{run.path}: no {MESH_FILE} to render (was output.save_mesh off?)")
+    mesh = o3d.io.read_triangle_mesh(str(mesh_path))
+    traj = run.trajectory()
+    ov, legend = _run_overlay(run, traj, odometry)
     T = T_world_cam if T_world_cam is not None else default_view(mesh, traj)
     img = render_mesh(mesh, T, width, height, overlay=ov)
     _legend(img, legend)
@@ -276,5 +276,5 @@ def render_run(
     png.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(png), img):
         raise SlamError(f"{png}: cannot write the image")
-    log.info("rendered %s into %s", run_dir, png)
+    log.info("rendered %s into %s", run.path, png)
     return png

@@ -25,9 +25,6 @@ frame). The file is written to ``PATH.tmp`` and renamed when complete.
 
 from __future__ import annotations
 
-import csv
-import dataclasses
-import json
 import logging
 import os
 import shutil
@@ -40,7 +37,9 @@ import numpy as np
 
 from slam.errors import SlamError
 from slam.records import TrackingStatus
-from slam.trajectory import Trajectory, read_tum
+from slam.run_folder import CONFIG_FILE, RECORDING_FILE, TRACKING_FILE, RunFolder
+from slam.run_folder.tracking_csv import read_tracking_csv as read_tracking_statuses
+from slam.trajectory import Trajectory
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -60,8 +59,6 @@ __all__ = [
     "record_run_folder",
 ]
 
-#: Default recording file of ``slam view RUN_DIR`` (in the run folder).
-RECORDING_FILE = "recording.rrd"
 TRAJECTORY_BLOCK = 100  # poses per world/odometry/NNN entity (each frame re-logs one block)
 
 _ODOMETRY_RGB = (66, 133, 244)
@@ -135,7 +132,7 @@ class RerunRecorder:
             frame.color,
             frame.depth_m,
             frame.K,
-            result.loops,
+            [r.as_json() for r in result.loops],
         )
 
     def log_frame(
@@ -291,7 +288,7 @@ class RerunRecorder:
         """Log the result of :func:`slam.run` (:meth:`log_final`) and close the file."""
         from slam.pipeline import summary_line
 
-        loops = result.loop_closer.records if result.loop_closer is not None else []
+        loops = result.loop_closer.loops_json()["candidates"] if result.loop_closer else []
         self.log_final(result.trajectory, result.mesh, loops, summary_line(result.metrics))
         return self.close()
 
@@ -339,27 +336,23 @@ def _blueprint(rr: Any) -> Any:
 # run folders
 
 
-def read_tracking_statuses(path: Path) -> list[TrackingStatus]:
-    """``tracking.csv`` of a run folder as the :class:`TrackingStatus` records it was made of."""
-    types = {f.name: f.type for f in dataclasses.fields(TrackingStatus)}
-    out = []
-    with path.open(newline="") as f:
-        for row in csv.DictReader(f):
-            kw: dict[str, Any] = {}
-            for k, v in row.items():
-                t = types.get(k)
-                if t is None or v is None:
-                    continue
-                if t in ("bool", bool):
-                    kw[k] = v in ("True", "true", "1")
-                elif t in ("int", int):
-                    kw[k] = int(float(v or 0))
-                elif t in ("float", float):
-                    kw[k] = float(v or 0)
-                else:
-                    kw[k] = v
-            out.append(TrackingStatus(**kw))
-    return out
+def _summary(run: RunFolder) -> str | None:
+    """The run's summary line from its metrics (``None`` when they are incomplete)."""
+    from slam.pipeline import summary_line
+
+    try:
+        return summary_line(run.metrics())
+    except (KeyError, TypeError, ValueError, SlamError):
+        return None
+
+
+def _mesh(run: RunFolder) -> o3d.geometry.TriangleMesh | None:
+    path = run.mesh_path()
+    if path is None:
+        return None
+    import open3d as o3d
+
+    return o3d.io.read_triangle_mesh(str(path))
 
 
 def record_run_folder(
@@ -372,43 +365,26 @@ def record_run_folder(
     ``loops.json`` (as finally decided), then ``trajectory.txt`` and ``mesh.ply``. Images are
     read from the sequence named in ``config.yaml`` when it is there (else none are logged).
     ``out``: default ``RUN_DIR/recording.rrd``. Returns the file written."""
-    from slam.run_folder import require_complete
-    from slam.tools.eval import _read_run_config
-
-    run_dir = require_complete(run_dir)
-    out = Path(out) if out is not None else run_dir / RECORDING_FILE
-    tracking_csv = run_dir / "tracking.csv"
-    if not tracking_csv.is_file():
+    run = RunFolder(run_dir).require_complete()
+    out = Path(out) if out is not None else run.file(RECORDING_FILE)
+    statuses = run.tracking()
+    if statuses is None:
         raise SlamError(
-            f"{run_dir}: no tracking.csv (the run was made with output.save_tracking_log off); "
-            "record it again with `slam run --rerun FILE.rrd`"
+            f"{run.path}: no {TRACKING_FILE} (the run was made with output.save_tracking_log "
+            "off); record it again with `slam run --rerun FILE.rrd`"
         )
-    statuses = read_tracking_statuses(tracking_csv)
-    odometry = read_tum(run_dir / "odometry.txt") if (run_dir / "odometry.txt").is_file() else None
-    trajectory = read_tum(run_dir / "trajectory.txt")
-    loops: list[dict[str, Any]] = []
-    if (run_dir / "loops.json").is_file():
-        loops = json.loads((run_dir / "loops.json").read_text()).get("candidates") or []
-    sequence = _open_run_sequence(run_dir, _read_run_config(run_dir)) if image_scale else None
-    mesh = None
-    if (run_dir / "mesh.ply").is_file():
-        import open3d as o3d
-
-        mesh = o3d.io.read_triangle_mesh(str(run_dir / "mesh.ply"))
+    odometry = run.odometry()
+    trajectory = run.trajectory()
+    loops = run.loops() or []
+    sequence = _open_run_sequence(run) if image_scale else None
+    mesh = _mesh(run)
     by_query: dict[int, list[dict[str, Any]]] = {}
     for c in loops:
         by_query.setdefault(int(c.get("query_frame", -1)), []).append(c)
     poses = odometry if odometry is not None else trajectory
     stamp_row = {round(float(t), 6): k for k, t in enumerate(poses.timestamps)}
-    summary = None
-    if (run_dir / "metrics.json").is_file():
-        from slam.pipeline import summary_line
-
-        try:
-            summary = summary_line(json.loads((run_dir / "metrics.json").read_text()))
-        except (KeyError, TypeError, ValueError):
-            summary = None
-    rec = RerunRecorder(out, image_scale=image_scale, name=run_dir.resolve().name)
+    summary = _summary(run)
+    rec = RerunRecorder(out, image_scale=image_scale, name=run.path.resolve().name)
     try:
         for st in statuses:
             k = stamp_row.get(round(st.timestamp, 6)) if st.ok else None
@@ -428,22 +404,29 @@ def record_run_folder(
     return rec.close()
 
 
-def _open_run_sequence(run_dir: Path, cfg: dict[str, Any]) -> Any:
-    dataset = cfg.get("dataset") if isinstance(cfg.get("dataset"), dict) else {}
-    path = (dataset or {}).get("path")
+def _open_run_sequence(run: RunFolder) -> Any:
+    """The run's sequence, to read its images again (``None``, with a warning, when it is not
+    here or cannot be opened)."""
+    try:
+        cfg = run.config()
+    except SlamError as exc:
+        log.warning("%s: the recording has no images: %s", run.path, exc)
+        return None
+    path = cfg.dataset.path if cfg is not None else None
     if not path or not Path(path).is_dir():
         log.warning(
             "%s: the run's sequence (%s) is not here; the recording has no images",
-            run_dir,
-            path or "not recorded in config.yaml",
+            run.path,
+            path or f"not recorded in {CONFIG_FILE}",
         )
         return None
     from slam.data.loader import open_sequence
 
+    assert cfg is not None
     try:
-        return open_sequence(path, dataset.get("layout") or "auto", dataset.get("calibration"))
+        return open_sequence(path, cfg.dataset.layout or "auto", cfg.dataset.calibration or None)
     except SlamError as exc:
-        log.warning("%s: cannot open the run's sequence, no images: %s", run_dir, exc)
+        log.warning("%s: cannot open the run's sequence, no images: %s", run.path, exc)
         return None
 
 

@@ -164,7 +164,7 @@ def test_full_report(tmp_path):
     assert ev.final.ate.rmse < ev.odometry.ate.rmse  # the "loop closure" helped
     d_f, d_o = ev.final.drift.percent, ev.odometry.drift.percent
     assert f"| drift (final position error / path length) [%] | {d_f:.3f} | {d_o:.3f} |" in md
-    origin = slam_eval.drift(slam_eval.read_tum(run.parent / "seq" / "groundtruth.txt"),
+    origin = slam_eval.drift(read_tum(run.parent / "seq" / "groundtruth.txt"),
                              read_tum(run / "trajectory.txt"), "origin")  # fmt: skip
     assert f"| drift from the start (first poses aligned) [%] | {origin.percent:.3f} |" in md
     rp = ev.final.rpe[1]

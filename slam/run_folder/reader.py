@@ -1,0 +1,187 @@
+"""Reading a run folder: :class:`RunFolder`, the one reader of what ``slam run`` writes, used by
+``slam eval``, ``slam report``, ``slam view`` and ``render_run``.
+
+Each accessor reads its file when called (nothing is cached) and says what is wrong with a
+missing or malformed file: optional files give ``None`` (or ``{}``) when absent, a present file
+that cannot be read is a :class:`~slam.errors.RunFolderError` (a ``config.yaml`` that is not a
+valid configuration, a :class:`~slam.errors.ConfigError`; a bad trajectory, a
+:class:`~slam.errors.TrajectoryError`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from slam.errors import ConfigError, RunFolderError, TrajectoryError
+from slam.run_folder.layout import (
+    CONFIG_FILE,
+    LOOPS_FILE,
+    MESH_FILE,
+    METRICS_FILE,
+    ODOMETRY_FILE,
+    SEGMENT_GLOB,
+    TRACKING_FILE,
+    TRAJECTORY_FILE,
+    segment_number,
+)
+from slam.run_folder.tracking_csv import read_tracking_csv
+from slam.trajectory import Trajectory, read_tum
+
+if TYPE_CHECKING:
+    from slam.config import SlamConfig
+    from slam.records import TrackingStatus
+
+__all__ = ["RunFolder", "same_trajectory"]
+
+
+def same_trajectory(a: Trajectory, b: Trajectory) -> bool:
+    """Whether two trajectories hold exactly the same timestamps and poses."""
+    return (
+        len(a) == len(b)
+        and bool(np.array_equal(a.timestamps, b.timestamps))
+        and bool(np.array_equal(a.poses, b.poses))
+    )
+
+
+class RunFolder:
+    """A run folder written by ``slam run`` (see :mod:`slam.run_folder`), opened on its path."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    def __repr__(self) -> str:
+        return f"RunFolder({str(self.path)!r})"
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    # --- files
+    def file(self, name: str) -> Path:
+        """The path of ``name`` (one of the :mod:`slam.run_folder.layout` names) in the folder."""
+        return self.path / name
+
+    def has(self, name: str) -> bool:
+        """Whether the file ``name`` is in the folder."""
+        return (self.path / name).is_file()
+
+    @property
+    def complete(self) -> bool:
+        """Whether the folder holds a complete run (its ``metrics.json`` is written last)."""
+        return self.has(METRICS_FILE)
+
+    def require_complete(self) -> RunFolder:
+        """This folder if it holds a complete run, else a :class:`RunFolderError` saying what
+        is there instead (see :func:`slam.run_folder.require_complete`)."""
+        from slam.run_folder import require_complete
+
+        require_complete(self.path)
+        return self
+
+    # --- contents
+    def _json(self, name: str) -> Any:
+        path = self.file(name)
+        try:
+            return json.loads(path.read_text())
+        except OSError as exc:
+            raise RunFolderError(f"{path}: cannot read: {exc}") from exc
+        except ValueError as exc:
+            raise RunFolderError(
+                f"{path}: not valid JSON ({exc}); was the run interrupted while writing it?"
+            ) from exc
+
+    def metrics(self) -> dict[str, Any]:
+        """``metrics.json`` (``{}`` when absent or not an object)."""
+        if not self.has(METRICS_FILE):
+            return {}
+        data = self._json(METRICS_FILE)
+        return data if isinstance(data, dict) else {}
+
+    def config(self) -> SlamConfig | None:
+        """``config.yaml`` through :func:`slam.config.load_config` (``None`` when absent)."""
+        from slam.config import load_config
+
+        return load_config(self.file(CONFIG_FILE)) if self.has(CONFIG_FILE) else None
+
+    def trajectory(self) -> Trajectory:
+        """``trajectory.txt``, the final trajectory; a :class:`TrajectoryError` when missing."""
+        if not self.has(TRAJECTORY_FILE):
+            raise TrajectoryError(
+                f"{self.path}: no {TRAJECTORY_FILE} in the run folder (is it the --out folder "
+                "of `slam run`?)"
+            )
+        return read_tum(self.file(TRAJECTORY_FILE))
+
+    def odometry(self) -> Trajectory | None:
+        """``odometry.txt``, the trajectory before loop closure (``None`` when absent)."""
+        return read_tum(self.file(ODOMETRY_FILE)) if self.has(ODOMETRY_FILE) else None
+
+    def segments(self) -> dict[int, Trajectory]:
+        """The ``segment_N.txt`` trajectories (map segments never joined), by segment number."""
+        out = {}
+        for path in sorted(self.path.glob(SEGMENT_GLOB)):
+            seg = segment_number(path.name)
+            if seg is not None and path.is_file():
+                out[seg] = read_tum(path)
+        return dict(sorted(out.items()))
+
+    def tracking(self) -> list[TrackingStatus] | None:
+        """``tracking.csv`` as its :class:`~slam.records.TrackingStatus` records (``None`` when
+        absent: the run had ``output.save_tracking_log`` off)."""
+        return read_tracking_csv(self.file(TRACKING_FILE)) if self.has(TRACKING_FILE) else None
+
+    def loops(self) -> list[dict[str, Any]] | None:
+        """The loop candidates of ``loops.json`` (its ``candidates`` list: the records of
+        :class:`slam.loops.closer.LoopCloser`), ``None`` when absent (no loop closure)."""
+        if not self.has(LOOPS_FILE):
+            return None
+        data = self._json(LOOPS_FILE)
+        cands = data.get("candidates") if isinstance(data, dict) else None
+        if not isinstance(cands, list):
+            raise RunFolderError(
+                f"{self.file(LOOPS_FILE)}: expected an object with a 'candidates' list, "
+                f"got {type(data).__name__}"
+            )
+        return [c for c in cands if isinstance(c, dict)]
+
+    def accepted_loops(self) -> list[dict[str, Any]]:
+        """The accepted loop candidates (``[]`` without ``loops.json``)."""
+        return [c for c in self.loops() or [] if c.get("accepted")]
+
+    def mesh_path(self) -> Path | None:
+        """``mesh.ply`` (``None`` when absent: an empty map, or ``output.save_mesh`` off)."""
+        return self.file(MESH_FILE) if self.has(MESH_FILE) else None
+
+    def sequence_path(self) -> str | None:
+        """The sequence folder the run was made from, as recorded: ``dataset.path`` of
+        ``config.yaml``, else ``sequence`` of ``metrics.json`` (``None`` when neither names it;
+        an unreadable ``metrics.json`` counts as naming none)."""
+        try:
+            cfg = self.config()
+        except ConfigError:  # a config of another version: the metrics still name the folder
+            cfg = None
+        if cfg is not None and cfg.dataset.path:
+            return cfg.dataset.path
+        return self.recorded_sequence()
+
+    def recorded_sequence(self) -> str | None:
+        """``sequence`` of ``metrics.json`` (``None`` when absent or unreadable)."""
+        try:
+            seq = self.metrics().get("sequence")
+        except RunFolderError:
+            return None
+        return str(seq) if seq else None
+
+    def sequence_dir(self) -> Path | None:
+        """:meth:`sequence_path` as an existing folder: as recorded (a relative path: to the
+        working directory, then to the run folder); ``None`` when there is none."""
+        recorded = self.sequence_path()
+        if not recorded:
+            return None
+        candidates = [Path(recorded).expanduser()]
+        if not candidates[0].is_absolute():
+            candidates.append(self.path / recorded)
+        return next((c for c in candidates if c.is_dir()), None)

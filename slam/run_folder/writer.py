@@ -1,0 +1,72 @@
+"""Writing a run folder: :func:`save_run` (the results of :func:`slam.run`) and
+:func:`write_config` (``config.yaml``, written before the first frame). Every file is written
+atomically, ``metrics.json`` last."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from slam.run_folder.layout import (
+    CONFIG_FILE,
+    LOOPS_FILE,
+    MESH_FILE,
+    METRICS_FILE,
+    ODOMETRY_FILE,
+    POSE_GRAPH_FILE,
+    TRACKING_FILE,
+    TRAJECTORY_FILE,
+    segment_file,
+)
+from slam.run_folder.tracking_csv import format_rows
+from slam.trajectory import atomic_write_text, write_tum
+
+if TYPE_CHECKING:
+    from slam.config import SlamConfig
+    from slam.results import RunResult
+
+__all__ = ["save_run", "write_config"]
+
+log = logging.getLogger(__name__)
+
+
+def write_config(run_dir: str | Path, config: SlamConfig) -> Path:
+    """Write the run's ``config.yaml`` (the full configuration; ``slam run --config`` reads it
+    back); returns its path."""
+    path = Path(run_dir) / CONFIG_FILE
+    atomic_write_text(path, config.to_yaml())
+    return path
+
+
+def save_run(result: RunResult, out_dir: str | Path) -> Path:
+    """Write the run folder: trajectory.txt, odometry.txt, mesh.ply, config.yaml, tracking.csv,
+    pose_graph.g2o, loops.json, segment_N.txt (map segments never joined to the main one) and,
+    last, metrics.json, which marks the folder as holding a complete run (any old one is removed
+    first). Every file is written atomically."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / METRICS_FILE).unlink(missing_ok=True)
+    write_tum(out / TRAJECTORY_FILE, result.trajectory)
+    write_tum(out / ODOMETRY_FILE, result.odometry)
+    for seg, traj in result.segments.items():
+        write_tum(out / segment_file(seg), traj)
+    if result.mesh is not None and len(result.mesh.vertices) > 0:
+        from slam.mapping.tsdf import write_mesh
+
+        write_mesh(out / MESH_FILE, result.mesh)
+    elif result.mesh is not None:
+        log.warning(
+            "%s: the map is empty (no surface seen with enough weight); no %s", out, MESH_FILE
+        )
+    if result.config is not None:
+        write_config(out, result.config)
+    if result.tracking and (result.config is None or result.config.output.save_tracking_log):
+        atomic_write_text(out / TRACKING_FILE, format_rows(result.tracking))
+    if result.loop_closer is not None:
+        result.loop_closer.graph.write_g2o(out / POSE_GRAPH_FILE)
+        loops = json.dumps(result.loop_closer.loops_json(), indent=1) + "\n"
+        atomic_write_text(out / LOOPS_FILE, loops)
+    atomic_write_text(out / METRICS_FILE, json.dumps(result.metrics.as_json(), indent=2) + "\n")
+    return out
