@@ -101,7 +101,7 @@ class Slam:
     ) -> None:
         self.cfg = cfg = (config or SlamConfig()).validate()
         self.has_color = has_color
-        self.tracker = Tracker(cfg.tracking, use_color=has_color, color_registered=color_registered)
+        self.tracker = Tracker(cfg.tracking, has_color=has_color, color_registered=color_registered)
         spill = None if work_dir is None else f"{work_dir}/submaps"
         self.model = SubmapMap(cfg.mapping, with_color=has_color, spill_dir=spill)
         self.closer = LoopCloser(cfg.loop, cfg.backend, cfg.tracking.depth_max_m)
