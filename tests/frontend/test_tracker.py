@@ -366,10 +366,12 @@ def test_state_dict_round_trip_gives_the_same_next_result(world, model):
     assert b.state.keyframes == [keyframes[i] for i in state["keyframes"]]
     assert all(np.array_equal(x, y) for x, y in zip(b.state.prev_pyramid, a.state.prev_pyramid))
     # after a gap: RANSAC seeds, so the generator's state matters too
-    # (Open3D's kernels are multithreaded: the same ICP twice may differ by ~1e-8)
+    # (Open3D's kernels are not deterministic: the same tracking twice, even by one tracker,
+    # may differ by a pixel's correspondence, a few 1e-5 m; a different RANSAC draw would show
+    # in the inlier counts and the generator's state)
     results = [t.track(world.frame(10), model, verify=True, dt_ratio=2.0) for t in (a, b)]
     (Ta, sa), (Tb, sb) = results
-    np.testing.assert_allclose(Ta, Tb, atol=1e-6)
+    np.testing.assert_allclose(Ta, Tb, atol=2e-4)
     discrete = ("path", "ok", "keyframe", "ransac_inliers", "ransac_matches", "model_rejected")
     assert [getattr(sa, k) for k in discrete] == [getattr(sb, k) for k in discrete]
     assert sa.ransac_inliers > 0 and sa.overlap == pytest.approx(sb.overlap, abs=1e-3)
