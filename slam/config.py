@@ -105,6 +105,10 @@ class TrackingConfig:
     # candidates a frame); after this many lost frames with usable depth a new map segment starts
     relocalisation_candidates: int = 5
     new_segment_after_lost: int = 10
+    # a model-ICP start within this distance and angle of one this frame already tried is
+    # skipped: it would converge to the same estimate again, at the cost of a ray-cast
+    same_start_translation_m: float = 0.005
+    same_start_rotation_deg: float = 0.3
     ransac: RansacConfig = field(default_factory=RansacConfig)
 
 

@@ -1,32 +1,169 @@
-"""TEMPORARY shim (replaced by the tracker's prepared frame)."""
+"""A frame prepared for tracking: everything tracking and relocalisation derive from a frame,
+computed once.
+
+A frame can be tracked, fail, and then be relocalised and become a keyframe: each of those
+needs the same filtered tracking-resolution depth, scaled intrinsics and (some of them) ORB
+features. Deriving them once here means a lost frame is never bilateral-filtered or
+ORB-extracted twice, and every consumer sees the very same arrays.
+"""
 
 from __future__ import annotations
 
-from functools import cached_property
-from typing import Any
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from slam.camera import scale_intrinsics
+from slam.config import TrackingConfig
 from slam.data.base import Frame
+from slam.frontend.features import OrbExtractor
+from slam.frontend.icp import IcpResult, projective_icp
+from slam.frontend.photometric import RgbdImage, grey, joint_align
+from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth
 from slam.keyframe import FeatureSet, KeyframeView
 
 
+def tracking_depth(depth_m: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
+    """Depth at tracking resolution (1/downsample, by depth-aware 2x2 averaging), then
+    bilateral-filtered (at that resolution: ~4x cheaper than at full resolution)."""
+    for _ in range(int(np.log2(cfg.downsample))):
+        depth_m = downsample_depth(depth_m)
+    if cfg.bilateral_sigma_m > 0:
+        sigma_px = cfg.bilateral_sigma_px / cfg.downsample
+        depth_m = bilateral_depth(depth_m, cfg.bilateral_sigma_m, sigma_px)
+    return depth_m
+
+
+def icp_depth_range(
+    depth_m: np.ndarray, depth_max_m: float, near_max_m: float, near_fraction: float
+) -> float:
+    """The depth range ICP uses for a frame: ``near_max_m`` when depth nearer than that holds at
+    least ``near_fraction`` of the valid pixels, else ``depth_max_m`` (a scene mostly far away
+    keeps all its depth). A structured-light sensor's depth noise grows as z^2 and is
+    structured far away: on tum-fr1-xyz, ICP on depth up to 2.5 m instead of 4 m has odometry
+    ATE 0.0111 m instead of 0.0143 m."""
+    if near_max_m >= depth_max_m:
+        return depth_max_m
+    valid = np.count_nonzero(depth_m > 0)
+    near = np.count_nonzero((depth_m > 0) & (depth_m < near_max_m))
+    return near_max_m if valid and near >= near_fraction * valid else depth_max_m
+
+
+@dataclass
 class PreparedFrame:
-    def __init__(self, frame: Frame, tracker: Any) -> None:
-        self.frame = frame
-        self.index = frame.index
-        self._tracker = tracker
+    """One frame as tracking uses it. Built by :meth:`PreparedFrame.build` (through
+    ``Tracker.prepare``); ORB features are extracted on first use only (most tracked frames
+    never need them) and then kept.
 
-    @cached_property
-    def depth(self):
-        return self._tracker._tracking_depth(self.frame.depth_m)
+    ``depth_m``: tracking depth (downsampled, bilateral-filtered); ``pyramid``: its ICP pyramid
+    (finest first); ``K_track``: intrinsics of ``depth_m``; ``icp_depth_max_m``: the depth range
+    ICP uses; ``rgbd``: depth + grey pyramids for the photometric term (None when it is off or
+    the frame has no colour); ``orb``: the extractor, None when colour is not used for features;
+    ``prep_ms``: time spent building it."""
 
-    @cached_property
-    def features(self):
-        return self._tracker._features(self.frame)
+    frame: Frame
+    depth_m: np.ndarray
+    pyramid: list[np.ndarray]
+    K_track: np.ndarray
+    icp_depth_max_m: float
+    rgbd: RgbdImage | None = None
+    orb: OrbExtractor | None = field(default=None, repr=False)
+    prep_ms: float = 0.0
+    _features: FeatureSet | None = field(default=None, init=False, repr=False)
+    _extracted: bool = field(default=False, init=False, repr=False)
+
+    @staticmethod
+    def build(
+        frame: Frame,
+        cfg: TrackingConfig,
+        orb: OrbExtractor | None,
+        photometric: bool,
+        depth_m: np.ndarray | None = None,
+    ) -> PreparedFrame:
+        """Derive the frame's tracking inputs (``depth_m``: its tracking depth when already
+        computed). ``photometric``: build the grey pyramids of the joint alignment."""
+        t0 = time.perf_counter()
+        depth = tracking_depth(frame.depth_m, cfg) if depth_m is None else depth_m
+        levels = len(cfg.iterations)
+        pyramid = depth_pyramid(depth, levels)  # built once: every ICP of this frame uses it
+        K_track = scale_intrinsics(frame.K, cfg.downsample)
+        icp_max = icp_depth_range(
+            depth, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
+        )
+        rgbd = None
+        if photometric and frame.color is not None:
+            rgbd = RgbdImage(pyramid, grey(frame.color, cfg.downsample), K_track, levels)
+        prep_ms = (time.perf_counter() - t0) * 1e3
+        return PreparedFrame(frame, depth, pyramid, K_track, icp_max, rgbd, orb, prep_ms)
+
+    @property
+    def index(self) -> int:
+        return self.frame.index
+
+    @property
+    def timestamp(self) -> float:
+        return self.frame.timestamp
+
+    @property
+    def has_color(self) -> bool:
+        """ORB features can be extracted: colour is used and this frame has it."""
+        return self.orb is not None and self.frame.color is not None
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of the tracking depth."""
+        return self.depth_m.shape[1], self.depth_m.shape[0]
+
+    @property
+    def features(self) -> FeatureSet | None:
+        """ORB features lifted by the full-resolution depth (None without colour), extracted
+        on first access and kept."""
+        if not self._extracted:
+            f = self.frame
+            if self.has_color:
+                assert self.orb is not None and f.color is not None
+                self._features = self.orb.extract(f.color, f.depth_m, f.K)
+            self._extracted = True
+        return self._features
+
+    def set_features(self, features: FeatureSet | None) -> None:
+        """Use features already extracted from this frame (instead of extracting them)."""
+        self._features, self._extracted = features, True
 
     def view(self) -> KeyframeView:
-        return KeyframeView(
-            self.features or FeatureSet.empty(),
-            self.depth,
-            scale_intrinsics(self.frame.K, self._tracker.cfg.downsample),
+        """What relocalisation matches against the keyframes: features (empty without colour),
+        tracking depth and its intrinsics."""
+        return KeyframeView(self.features or FeatureSet.empty(), self.depth_m, self.K_track)
+
+    def icp_to(
+        self, target_depth: np.ndarray | list[np.ndarray], T_init: np.ndarray, cfg: TrackingConfig
+    ) -> IcpResult:
+        """Point-to-plane projective ICP of this frame to a target depth image (or pyramid) in
+        the same camera; ``T_init``: the initial ``T_target_source``."""
+        return projective_icp(
+            self.pyramid,
+            target_depth,
+            self.K_track,
+            T_init,
+            cfg.iterations,
+            self.icp_depth_max_m,
+            cfg.max_correspondence_m,
+            cfg.huber_delta_m,
+            cfg.coarse_correspondence_factor,
+        )
+
+    def joint_to(self, target: RgbdImage, T_init: np.ndarray, cfg: TrackingConfig) -> IcpResult:
+        """Joint photometric + geometric alignment of this frame to ``target`` (needs
+        ``rgbd``)."""
+        assert self.rgbd is not None
+        return joint_align(
+            self.rgbd,
+            target,
+            T_init,
+            cfg.iterations,
+            cfg.max_correspondence_m,
+            cfg.huber_delta_m,
+            cfg.coarse_correspondence_factor,
+            cfg.photometric_weight,
         )

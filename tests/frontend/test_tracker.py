@@ -1,10 +1,25 @@
-"""Tracker helpers: the depth range ICP uses."""
+"""The tracker: its helpers, each stage of ``Tracker.track`` on a small synthetic scene with exact
+depth (pose errors against ground truth), the prepared frame, and checkpoints."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from slam.frontend.tracker import icp_depth_range
+from slam.config import MappingConfig, TrackingConfig
+from slam.data.base import Frame
+from slam.errors import TrackingError
+from slam.frontend import frame as frame_module
+from slam.frontend.alignment import align_from
+from slam.frontend.features import OrbExtractor
+from slam.frontend.tracker import Tracker, icp_depth_range, scale_motion
+from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
+from slam.keyframe import Keyframe
+from slam.mapping.submaps import SubmapMap
+from slam.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
+
+# ------------------------------------------------------------------------------------------------
+# helpers
 
 
 def _depth(near_fraction: float, near_m: float = 1.5, far_m: float = 3.5) -> np.ndarray:
@@ -26,3 +41,338 @@ def test_full_range_for_a_far_scene():
 
 def test_near_range_beyond_the_full_one_is_the_full_one():
     assert icp_depth_range(_depth(0.8), 2.0, 2.5, 0.3) == 2.0
+
+
+# ------------------------------------------------------------------------------------------------
+# a 320x240 synthetic loop with exact depth (1.8 cm and 1.6 deg between frames), a model fused
+# from its first frames at the true poses
+
+
+class World:
+    def __init__(self) -> None:
+        self.cfg = SynthConfig.half_resolution(frames=300, loop=True, seed=1, noise=False)
+        self.scene = build_scene(self.cfg)
+        self.poses = make_trajectory(self.cfg).poses
+        self.K = self.cfg.calibration().K
+        self._frames: dict[int, Frame] = {}
+
+    def frame(self, i: int) -> Frame:
+        if i not in self._frames:
+            color, depth = render_frame(self.scene, self.poses[i], self.cfg)
+            self._frames[i] = Frame(i, i / 30.0, color, depth, self.K)
+        return self._frames[i]
+
+    def model(self, frames: range) -> SubmapMap:
+        m = SubmapMap(MappingConfig(), with_color=True)
+        for i in frames:
+            f = self.frame(i)
+            m.integrate(f.depth_m, f.color, f.K, self.poses[i])
+        return m
+
+
+@pytest.fixture(scope="module")
+def world() -> World:
+    return World()
+
+
+@pytest.fixture(scope="module")
+def model(world) -> SubmapMap:
+    """The model of frames 0-10 (the tracker only ray-casts it: tests share it)."""
+    return world.model(range(0, 11))
+
+
+def _errors(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+    """(translation m, rotation deg) between two poses."""
+    d = inv_T(T_true) @ T
+    return translation_norm(d), rotation_angle_deg(d)
+
+
+def _tracker_at(world: World, i: int, **cfg) -> Tracker:
+    """A tracker reset at frame ``i``'s true pose."""
+    tracker = Tracker(TrackingConfig(**cfg))
+    tracker.reset(world.frame(i), world.poses[i])
+    return tracker
+
+
+def _motion(t_m: float, r_deg: float) -> np.ndarray:
+    """A motion of ``t_m`` along x and ``r_deg`` about y."""
+    T = exp_se3(np.array([0.0, np.radians(r_deg), 0.0, 0.0, 0.0, 0.0]))
+    T[0, 3] = t_m
+    return T
+
+
+# ------------------------------------------------------------------------------------------------
+# the stages
+
+
+def test_predict_scales_the_velocity_by_the_interval_and_flags_large_motion(world):
+    tracker = _tracker_at(world, 5)
+    tracker.state.velocity = _motion(0.02, 1.0)
+    p = tracker.prepare(world.frame(6))
+    att = tracker.predict(p, dt_ratio=2.0, segment=3)
+    # the same twist for twice as long: twice the angle, a little more than twice the distance
+    np.testing.assert_allclose(att.velocity, scale_motion(_motion(0.02, 1.0), 2.0), atol=1e-15)
+    assert rotation_angle_deg(att.velocity) == pytest.approx(2.0, abs=1e-9)
+    assert translation_norm(att.velocity) == pytest.approx(0.04, abs=1e-5)
+    assert not att.large and not att.verify
+    assert att.status.path == "icp" and att.status.segment == 3 and not att.status.gap
+    np.testing.assert_array_equal(att.T_world_prev, tracker.state.T_world_prev)
+    # after reset the previous frame's pyramid is not built: frame-to-frame ICP gets the depth
+    assert att.prev_depth is tracker.state.prev_depth
+    tracker.state.velocity = _motion(0.02, 0.0)
+    # 2.9 intervals: 5.8 cm, not above large_motion_translation_m (6 cm); 4 intervals: 8 cm
+    assert not tracker.predict(p, dt_ratio=2.9).large
+    assert tracker.predict(p, dt_ratio=4.0).large
+    # at most MAX_EXTRAPOLATION (30) intervals
+    far = tracker.predict(p, dt_ratio=100.0).velocity
+    assert translation_norm(far) == pytest.approx(0.6, abs=1e-9)
+    # after a gap the prediction is never trusted
+    gap = tracker.predict(p, verify=True)
+    assert gap.large and gap.verify and gap.status.gap
+
+
+def test_seed_is_a_ransac_pose_under_large_motion_and_the_prediction_otherwise(world):
+    tracker = _tracker_at(world, 0)
+    p = tracker.prepare(world.frame(5))  # 8.6 cm and 8.1 deg from frame 0
+    rng_before = tracker.state_dict()["rng"]
+    guess, trusted = tracker.seed(tracker.predict(p))  # at rest: small motion, no RANSAC
+    np.testing.assert_array_equal(guess, np.eye(4))
+    assert not trusted
+    assert tracker.state_dict()["rng"] == rng_before  # RANSAC drew nothing
+
+    att = tracker.predict(p, verify=True)
+    guess, trusted = tracker.seed(att)
+    assert trusted and att.status.path == "ransac+icp"
+    assert att.status.ransac_inliers >= tracker.cfg.ransac.min_inliers
+    assert att.status.ransac_matches >= att.status.ransac_inliers
+    assert att.ransac is not None and att.ransac.success and att.feats is p.features
+    dt, dr = _errors(att.T_world_prev @ guess, world.poses[5])
+    assert dt < 0.02 and dr < 1.0
+
+
+def test_align_refines_the_guess_against_the_model(world, model):
+    tracker = _tracker_at(world, 8)
+    att = tracker.predict(tracker.prepare(world.frame(10)))  # 2.8 cm and 3.3 deg away
+    tracker.align(att, model, *tracker.seed(att))
+    assert att.ok and att.status.path == "icp" and len(att.tried) == 1
+    assert att.status.f2f_fitness > 0.85 and att.overlap > 0.6
+    dt, dr = _errors(att.T_world_cam, world.poses[10])
+    assert dt < 0.003 and dr < 0.2
+
+
+def test_align_distrusts_a_large_model_correction_of_a_measured_guess(world, model):
+    # no frame-to-frame ICP: the model ICP alone corrects a guess 2 cm off the true pose
+    tracker = _tracker_at(world, 9, frame_to_frame=False, max_model_correction_m=0.01)
+    p = tracker.prepare(world.frame(9))
+    off = _motion(0.02, 0.0)
+    for trusted in (False, True):
+        att = tracker.predict(p)
+        tracker.align(att, model, off, trusted)
+        dt, _ = _errors(att.T_world_cam, world.poses[9])
+        if trusted:  # a measured guess keeps its pose: the 2 cm correction is distrusted
+            assert att.status.model_rejected and dt == pytest.approx(0.02, abs=1e-6)
+        else:
+            assert not att.status.model_rejected and dt < 0.003
+
+
+def test_a_start_already_tried_is_skipped(world, model):
+    tracker = _tracker_at(world, 9, frame_to_frame=False)
+    att = tracker.predict(tracker.prepare(world.frame(9)))
+    assert align_from(tracker.cfg, att, model, np.eye(4), False) is not None
+    # within same_start_translation_m (5 mm) and same_start_rotation_deg (0.3 deg)
+    assert align_from(tracker.cfg, att, model, _motion(0.004, 0.2), False) is None
+    assert align_from(tracker.cfg, att, model, _motion(0.006, 0.0), False) is not None
+    assert len(att.tried) == 2
+    tracker.cfg.same_start_translation_m = 0.01
+    assert align_from(tracker.cfg, att, model, _motion(0.008, 0.0), False) is None
+
+
+def test_alternatives_recover_from_a_wrong_prediction(world, model):
+    tracker = _tracker_at(world, 9)
+    tracker.state.velocity = _motion(0.25, 20.0)  # far off: the frame barely moved
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    assert att.large
+    hypotheses = att.hypotheses(tracker.ransac, tracker._candidates())
+    assert [name for name, _ in hypotheses] == ["icp", "icp", "ransac+icp"]
+    dt, dr = _errors(att.T_world_prev @ hypotheses[2][1], world.poses[10])
+    assert dt < 0.01 and dr < 1.0  # the RANSAC guess
+    # ICP from the prediction alone (as if neither the seed nor the rescue had found a pose)
+    first = align_from(tracker.cfg, att, model, att.velocity, False)
+    assert first is not None
+    att.keep(*first)
+    att.ok = att.passes(tracker.cfg)
+    assert not att.ok and _errors(att.T_world_cam, world.poses[10])[0] > 0.05
+    tracker.alternatives(att, model)
+    dt, dr = _errors(att.T_world_cam, world.poses[10])
+    assert att.ok and dt < 0.003 and dr < 0.2
+    assert len(att.tried) >= 2 and att.overlap > 0.6
+
+
+def test_verify_needs_orb_support_after_a_gap(world, model):
+    tracker = _tracker_at(world, 9)
+    p = tracker.prepare(world.frame(10))
+    # a good pose after a gap: ORB matches agree with it
+    att = tracker.predict(p, verify=True)
+    tracker.align(att, model, *tracker.seed(att))
+    att.overlap = 0.5  # below hypothesis_overlap: depth alone does not verify it
+    tracker.verify(att)
+    assert att.ok and att.status.reason == ""
+    assert tracker.ransac.support(att.feats, att.T_world_cam, tracker._candidates()) > 50
+    # a pose 20 cm off: no match agrees
+    att.T_world_cam = att.T_world_cam @ _motion(0.2, 0.0)
+    assert tracker.ransac.support(att.feats, att.T_world_cam, tracker._candidates()) < 8
+    tracker.verify(att)
+    assert not att.ok and att.status.reason.startswith("unverified after a gap: ")
+    assert att.status.overlap == 0.5 and att.status.icp_fitness > 0.7
+
+
+def test_verify_checks_an_overlap_far_below_the_recent_frames(world, model):
+    tracker = _tracker_at(world, 9)
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    tracker.align(att, model, *tracker.seed(att))
+    att.T_world_cam = att.T_world_cam @ _motion(0.2, 0.0)
+    att.overlap = 0.4
+    tracker.state.recent_overlaps = [0.9] * 5  # 0.4 < suspect_overlap_ratio (0.6) x 0.9
+    tracker.verify(att)
+    assert not att.ok and "overlap below 0.6 of the recent frames' 0.90" in att.status.reason
+    # not suspect (0.6 >= 0.54) and not after a gap: no verification
+    att.ok, att.overlap, att.status.reason = True, 0.6, ""
+    tracker.verify(att)
+    assert att.ok
+    # failing estimates report why
+    att.ok = False
+    tracker.verify(att)
+    assert att.status.reason.startswith("overlap 0.60 (min 0.3), ICP fitness")
+
+
+def test_commit_updates_the_state_and_decides_keyframes(world, model):
+    tracker = _tracker_at(world, 9)
+    st = tracker.state
+    T_prev = st.T_world_prev
+    p = tracker.prepare(world.frame(10))
+    att = tracker.predict(p, dt_ratio=2.0)
+    tracker.align(att, model, *tracker.seed(att))
+    tracker.verify(att)
+    T = tracker.commit(att)
+    assert T is not None and att.status.ok and not att.status.keyframe
+    np.testing.assert_allclose(T, att.T_world_cam, atol=1e-9)
+    np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+    assert st.T_world_prev is T and st.prev_depth is p.depth_m and st.prev_pyramid is p.pyramid
+    assert st.recent_overlaps == [float(att.overlap)]
+    assert st.prev_features is None  # this frame never needed its features
+    # velocity per usual interval: half of the motion over two intervals
+    np.testing.assert_allclose(st.velocity, scale_motion(inv_T(T_prev) @ T, 0.5), atol=1e-15)
+    assert len(st.keyframes) == 1  # 2.8 cm from the keyframe: none
+
+    # 15 cm (> keyframe_translation_m) from the keyframe: a new one
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    att.T_world_cam, att.overlap, att.ok = world.poses[9] @ _motion(0.16, 0.0), 0.9, True
+    assert tracker.commit(att) is not None and att.status.keyframe
+    kf = st.keyframes[-1]
+    assert kf.id == 1 and kf.index == 10 and len(kf.features) > 100
+    np.testing.assert_allclose(kf.K, p.K_track)
+
+    # a lost frame: the previous frame is forgotten, the pose and velocity stay
+    T_last, v_last = st.T_world_prev, st.velocity
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    att.ok = False
+    att.status.reason = "test"
+    assert tracker.commit(att) is None
+    assert att.status.path == "lost" and not att.status.ok
+    assert st.prev_depth is None and st.prev_features is None
+    assert st.T_world_prev is T_last and st.velocity is v_last
+
+
+# ------------------------------------------------------------------------------------------------
+# the whole of track(), the prepared frame, the API
+
+
+def test_track_follows_the_true_trajectory(world, model):
+    tracker = _tracker_at(world, 4)
+    for i in range(5, 11):
+        T, status = tracker.track(tracker.prepare(world.frame(i)), model)
+        assert T is not None and status.ok and status.path == "icp"
+        dt, dr = _errors(T, world.poses[i])
+        assert dt < 0.003 and dr < 0.2
+    # a plain frame is prepared by track itself
+    T2, _ = _tracker_at(world, 9).track(world.frame(10), model)
+    dt, dr = _errors(T2, world.poses[10])
+    assert dt < 0.003 and dr < 0.2
+
+
+def test_track_before_reset_says_what_to_do(world, model):
+    with pytest.raises(TrackingError, match="call reset"):
+        Tracker(TrackingConfig()).track(world.frame(0), model)
+
+
+def test_lost_status_and_colourless_frames(world):
+    tracker = Tracker(TrackingConfig(), has_color=False)
+    status = tracker.lost_status(world.frame(3), "no usable depth", gap=True)
+    assert (status.index, status.path, status.ok, status.gap) == (3, "lost", False, True)
+    assert status.reason == "no usable depth" and status.timestamp == pytest.approx(0.1)
+    p = tracker.prepare(world.frame(3))
+    assert tracker.lost_status(p, "x").index == 3
+    assert p.features is None and len(p.view().features) == 0
+    assert p.depth_m.shape == (120, 160) and p.K_track[0, 0] == pytest.approx(world.K[0, 0] / 2)
+    assert tracker.prepare(p) is p
+
+
+def test_a_lost_frame_is_filtered_and_orb_extracted_once(world, model, monkeypatch):
+    tracker = _tracker_at(world, 10)
+    calls = {"bilateral": 0, "orb": 0}
+    bilateral, extract = frame_module.bilateral_depth, OrbExtractor.extract
+
+    def counting_bilateral(*a, **kw):
+        calls["bilateral"] += 1
+        return bilateral(*a, **kw)
+
+    def counting_extract(self, *a, **kw):
+        calls["orb"] += 1
+        return extract(self, *a, **kw)
+
+    monkeypatch.setattr(frame_module, "bilateral_depth", counting_bilateral)
+    monkeypatch.setattr(OrbExtractor, "extract", counting_extract)
+    p = tracker.prepare(world.frame(150))  # the other side of the room: not in the model
+    T, status = tracker.track(p, model, verify=True)
+    assert T is None and status.path == "lost"
+    view = p.view()  # relocalisation matches this against the keyframes ...
+    assert view.features is p.features and view.depth_m is p.depth_m and view.K is p.K_track
+    status = tracker.reset(p, world.poses[150], "reloc")  # ... and tracking restarts there
+    assert status.path == "reloc" and status.keyframe
+    assert tracker.state.keyframes[-1].features is p.features
+    assert calls == {"bilateral": 1, "orb": 1}
+
+
+def _plain(value) -> bool:
+    """Plain data and numpy arrays only (what a checkpoint may hold)."""
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+    if isinstance(value, (list, tuple)):
+        return all(_plain(v) for v in value)
+    return value is None or isinstance(value, (bool, int, float, str, np.ndarray, np.generic))
+
+
+def test_state_dict_round_trip_gives_the_same_next_result(world, model):
+    a = _tracker_at(world, 4)
+    for i in range(5, 8):
+        a.track(world.frame(i), model)
+    a.track(world.frame(8), model, verify=True)  # leaves its features for the next frame
+    state = a.state_dict()
+    assert _plain(state) and state["keyframes"] == [kf.id for kf in a.state.keyframes]
+    assert state["prev_features"] is not None
+    keyframes = {kf.id: Keyframe.from_state(kf.to_state()) for kf in a.state.keyframes}
+    b = Tracker(TrackingConfig())
+    b.load_state_dict(state, keyframes)
+    assert b.state.keyframes == [keyframes[i] for i in state["keyframes"]]
+    assert all(np.array_equal(x, y) for x, y in zip(b.state.prev_pyramid, a.state.prev_pyramid))
+    # after a gap: RANSAC seeds, so the generator's state matters too
+    # (Open3D's kernels are not deterministic: the same tracking twice, even by one tracker,
+    # may differ by a pixel's correspondence, a few 1e-5 m; a different RANSAC draw would show
+    # in the inlier counts and the generator's state)
+    results = [t.track(world.frame(10), model, verify=True, dt_ratio=2.0) for t in (a, b)]
+    (Ta, sa), (Tb, sb) = results
+    np.testing.assert_allclose(Ta, Tb, atol=2e-4)
+    discrete = ("path", "ok", "keyframe", "ransac_inliers", "ransac_matches", "model_rejected")
+    assert [getattr(sa, k) for k in discrete] == [getattr(sb, k) for k in discrete]
+    assert sa.ransac_inliers > 0 and sa.overlap == pytest.approx(sb.overlap, abs=1e-3)
+    assert a.state_dict()["rng"] == b.state_dict()["rng"]

@@ -1,0 +1,169 @@
+"""One frame's tracking attempt and the ICP steps it is made of.
+
+:class:`Attempt` carries what the stages of :meth:`slam.frontend.tracker.Tracker.track` hand on
+to each other (the prediction, the model-ICP starts tried, the best estimate, the status
+record); :func:`align_from` and :func:`align_to_model` are the two ICP steps every guess goes
+through: frame-to-frame ICP against the previous frame, then frame-to-model ICP against the
+model's ray-cast.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from slam.config import TrackingConfig
+from slam.frontend.frame import PreparedFrame
+from slam.frontend.icp import IcpResult, projective_overlap
+from slam.frontend.keyframe_ransac import KeyframeRansac
+from slam.frontend.model import TrackingModel
+from slam.frontend.photometric import RgbdImage, grey
+from slam.frontend.ransac import RansacResult
+from slam.geometry import inv_T, rotation_angle_deg, translation_norm
+from slam.keyframe import FeatureSet, Keyframe
+from slam.records import TrackingStatus
+
+#: An estimate: ``T_world_cam``, its frame-to-model ICP and its verified overlap with the model.
+Estimate = tuple[np.ndarray, IcpResult, float]
+
+
+@dataclass
+class Attempt:
+    """One frame's way through the stages of tracking: the prediction, what the stages found
+    so far and the frame's status record. Stages read and update it instead of sharing
+    closures, so each stage can be run (and tested) on its own.
+
+    ``prev_depth``: the previous frame's ICP pyramid (or depth), None when there is no previous
+    frame to align to (after a loss); ``prev_rgbd``: its joint-alignment pyramids."""
+
+    frame: PreparedFrame
+    status: TrackingStatus
+    T_world_prev: np.ndarray  # the previous frame's pose, where the motion starts
+    velocity: np.ndarray  # predicted T_prev_cur (constant velocity over the interval)
+    large: bool  # the predicted motion is large, or the frame follows a gap
+    verify: bool  # the frame follows a gap: its pose needs ORB support
+    dt_ratio: float = 1.0  # the frame's interval over the usual one
+    prev_depth: np.ndarray | list[np.ndarray] | None = None
+    prev_rgbd: RgbdImage | None = None
+    feats: FeatureSet | None = None  # the frame's ORB features, once a stage used them
+    ransac: RansacResult | None = None  # the seed's / rescue's RANSAC with the most inliers
+    tried: list[np.ndarray] = field(default_factory=list)  # model-ICP starts (T_world_cam)
+    T_world_cam: np.ndarray | None = None  # the best estimate so far ...
+    icp: IcpResult | None = None  # ... its frame-to-model ICP
+    overlap: float = 0.0  # ... and its verified overlap with the model ray-cast
+    ok: bool = False  # the best estimate passes the checks
+
+    def keep(self, T_world_cam: np.ndarray, icp: IcpResult, overlap: float) -> None:
+        self.T_world_cam, self.icp, self.overlap = T_world_cam, icp, overlap
+
+    def passes(self, cfg: TrackingConfig) -> bool:
+        """The estimate overlaps the model and ICP found enough correspondences."""
+        assert self.icp is not None
+        return self.overlap >= cfg.min_overlap and self.icp.fitness >= cfg.min_fitness
+
+    def features(self) -> FeatureSet | None:
+        """The frame's features, from now on used by this attempt (None without colour)."""
+        if self.feats is None:
+            self.feats = self.frame.features
+        return self.feats
+
+    def ransac_guess(
+        self, matcher: KeyframeRansac, candidates: list[Keyframe]
+    ) -> np.ndarray | None:
+        """``T_world_cur`` by RANSAC against the candidates (the previous frame, else the most
+        recent keyframes, newest first); records the best RANSAC here and in the status."""
+        feats = self.features()
+        if feats is None:
+            return None
+        g, best, n_matches = matcher.seed(feats, candidates)
+        if best is not None:
+            self.ransac = best
+            self.status.ransac_inliers = best.n_inliers
+            self.status.ransac_matches = n_matches
+        return g
+
+    def hypotheses(
+        self, matcher: KeyframeRansac, candidates: list[Keyframe]
+    ) -> list[tuple[str, np.ndarray]]:
+        """Alternative guesses of ``T_prev_cur`` (with the path each reports): no motion,
+        constant velocity, and the RANSAC pose with the most inliers against the candidates
+        (the previous frame and the recent keyframes). Features extracted here are not kept
+        for the attempt (so whether the frame leaves its features for the next one depends
+        only on the seed, the verification and the keyframe decision)."""
+        out = [("icp", np.eye(4)), ("icp", self.velocity)]
+        feats = self.feats
+        if feats is None and self.frame.has_color:
+            feats = self.frame.features
+        if feats is not None and len(feats) > 0:
+            g = matcher.best_motion(feats, candidates, self.T_world_prev)
+            if g is not None:
+                out.append(("ransac+icp", g))
+        return out
+
+
+def align_to_model(
+    cfg: TrackingConfig,
+    att: Attempt,
+    model: TrackingModel,
+    T_world_guess: np.ndarray,
+    trusted: bool = True,
+) -> Estimate:
+    """Frame-to-model ICP: align the frame to the model ray-cast at the guessed pose. Returns
+    the refined pose, the ICP result and the verified overlap. A correction larger than
+    ``max_model_correction`` of a ``trusted`` guess (one measured by frame-to-frame ICP or
+    RANSAC, not merely predicted) is distrusted: the guess is kept."""
+    p = att.frame
+    w, h = p.size
+    render = model.raycast(
+        p.K_track, w, h, T_world_guess, False, p.rgbd is not None, frustum_depth_m=p.depth_m
+    )
+    if p.rgbd is not None and render.color is not None:
+        target = RgbdImage(render.depth_m, grey(render.color), p.K_track, len(cfg.iterations))
+        icp = p.joint_to(target, np.eye(4), cfg)
+    else:
+        icp = p.icp_to(render.depth_m, np.eye(4), cfg)
+    step = icp.T_target_source
+    if trusted and (
+        translation_norm(step) > cfg.max_model_correction_m
+        or rotation_angle_deg(step) > cfg.max_model_correction_deg
+    ):
+        step = np.eye(4)
+        att.status.model_rejected = True
+    score = projective_overlap(p.depth_m, render.depth_m, p.K_track, step, cfg.inlier_threshold_m)
+    return T_world_guess @ step, icp, score
+
+
+def align_from(
+    cfg: TrackingConfig,
+    att: Attempt,
+    model: TrackingModel,
+    T_prev_cur: np.ndarray,
+    trusted: bool,
+) -> Estimate | None:
+    """Frame-to-frame ICP against the previous frame from a guess of ``T_prev_cur`` (when
+    enabled; its result is kept when it fits and does not jump), then frame-to-model ICP.
+    None when the model ICP would start where this frame already started one (within
+    ``same_start_*``): the same result again, at the cost of a ray-cast."""
+    p = att.frame
+    if cfg.frame_to_frame and att.prev_depth is not None:
+        if p.rgbd is not None and cfg.photometric_frame_to_frame and att.prev_rgbd is not None:
+            f2f = p.joint_to(att.prev_rgbd, T_prev_cur, cfg)
+        else:
+            f2f = p.icp_to(att.prev_depth, T_prev_cur, cfg)
+        att.status.f2f_fitness = round(float(f2f.fitness), 4)
+        if f2f.fitness >= cfg.min_fitness and (
+            translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source) <= cfg.max_step_translation_m
+        ):
+            T_prev_cur = f2f.T_target_source
+            trusted = True
+    T_world_guess = att.T_world_prev @ T_prev_cur
+    for T_done in att.tried:
+        d = inv_T(T_done) @ T_world_guess
+        if (
+            translation_norm(d) < cfg.same_start_translation_m
+            and rotation_angle_deg(d) < cfg.same_start_rotation_deg
+        ):
+            return None
+    att.tried.append(T_world_guess)
+    return align_to_model(cfg, att, model, T_world_guess, trusted)
