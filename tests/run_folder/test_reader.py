@@ -29,10 +29,9 @@ from slam.trajectory import Trajectory, read_tum, write_tum
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory):
     """A 10-frame run of a 320x240 synthetic loop: (sequence folder, RunResult, run folder)."""
-    from slam.synthetic import SynthConfig, generate_sequence
-
     from slam.api import run_sequence
     from slam.config import config_from_dict
+    from slam.synthetic import SynthConfig, generate_sequence
 
     root = tmp_path_factory.mktemp("reader")
     seq = generate_sequence(
