@@ -338,7 +338,7 @@ class LoopCloser:
         here by id."""
         return {
             "graph": self.graph.state_dict(),
-            "database": copy.deepcopy(self.database),
+            "database": self.database.state_dict(),
             "keyframes": [kf.id for kf in self.keyframes],
             "path_length_m": list(self.path_length_m),
             "records": copy.deepcopy(self.records),
@@ -347,14 +347,14 @@ class LoopCloser:
             "segment_parent": dict(self.segment_parent),
             "joins": copy.deepcopy(self.joins),
             "pending_joins": [
-                (c.id, k.id, copy.deepcopy(v), tag) for c, k, v, tag in self._pending_joins
+                (c.id, k.id, copy.deepcopy(vars(v)), tag) for c, k, v, tag in self._pending_joins
             ],
             "verifier_rng": self.verifier._rng.bit_generator.state,
         }
 
     def load_state_dict(self, state: dict[str, Any], keyframes: dict[int, Keyframe]) -> None:
         self.graph = PoseGraph.from_state_dict(self.backend_cfg, state["graph"])
-        self.database = state["database"]
+        self.database = KeyframeDatabase.from_state_dict(state["database"])
         self.keyframes = [keyframes[i] for i in state["keyframes"]]
         self.path_length_m = list(state["path_length_m"])
         self.records = state["records"]
@@ -363,6 +363,7 @@ class LoopCloser:
         self.segment_parent = dict(state["segment_parent"])
         self.joins = state["joins"]
         self._pending_joins = [
-            (keyframes[c], keyframes[k], v, tag) for c, k, v, tag in state["pending_joins"]
+            (keyframes[c], keyframes[k], Verification(**v), tag)
+            for c, k, v, tag in state["pending_joins"]
         ]
         self.verifier._rng.bit_generator.state = state["verifier_rng"]
