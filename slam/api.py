@@ -126,7 +126,7 @@ def resume_run(
         raise RunFolderError(f"{run_dir}: the run is complete (metrics.json); nothing to resume")
     if not has_checkpoint(run_dir):
         raise RunFolderError(
-            f"{run_dir}: no checkpoint to resume from (checkpoint/state.pkl); the run was "
+            f"{run_dir}: no checkpoint to resume from (checkpoint/state.json); the run was "
             "stopped before its first checkpoint or ran without --checkpoint-every: start it "
             "again with --overwrite"
         )
