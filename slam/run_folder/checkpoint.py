@@ -6,10 +6,12 @@ Layout (format ``slam-checkpoint``, version :data:`FORMAT_VERSION`):
 
 - ``state.json``: the format name and version, the position in the frame list, the checkpoint
   serial K and interval, the names of the files below and the state itself as one JSON document,
-  in which each numpy array is a reference into ``state_K.npz``;
+  in which each numpy array is a reference into ``state_K.npz`` (arrays of at most 16 elements,
+  such as poses, are written inline, exactly);
 - ``state_K.npz``: the arrays of ``state.json``;
 - ``kf_NNNNNN.npz``: one keyframe (ORB features and depth), its JSON document in the entry
-  ``__doc__`` and its arrays beside it; written once (keyframes never change);
+  ``__doc__`` and its arrays beside it; written once (keyframes never change), except that a
+  file the current ``state.json`` does not name (left by a killed write) is written again;
 - ``volume_SSSS_K.npz``: the blocks of submap SSSS, held in memory at checkpoint K.
 
 Submaps spilled to ``RUN_DIR/submaps/`` are final once written and only referenced, by their
@@ -53,6 +55,7 @@ OLD_STATE_FILE = "state.pkl"
 _TAG = "$t"  # JSON objects with this key are encoded values, not plain dicts
 _DOC = "__doc__"  # the JSON document inside a keyframe's .npz
 _ARRAY_KINDS = frozenset("biufc")  # bool, signed, unsigned, float, complex
+_INLINE = 16  # arrays of at most this many elements are written into the JSON document
 _STATE_ARRAYS = re.compile(r"state_\d+\.npz")
 _KEYFRAME = re.compile(r"kf_\d{6,}\.npz")
 _VOLUME = re.compile(r"volume_\d{4,}_\d+\.npz")
@@ -67,19 +70,36 @@ class CheckpointError(RunFolderError):
 
 # --- codec
 class _Encoder:
-    """Plain data to a JSON-able tree; arrays go to :attr:`arrays` (referenced by key; an array
-    met twice is stored once and comes back as one object, as with pickle)."""
+    """Plain data to a JSON-able tree. Small arrays (poses, intrinsics) are written inline
+    (exactly: float32 and float16 values are exact as Python floats), the others go to
+    :attr:`arrays`, referenced by key. An array met twice comes back as one object, as with
+    pickle (an inline one moves to :attr:`arrays` when met again)."""
 
     def __init__(self) -> None:
         self.arrays: dict[str, np.ndarray] = {}
-        self._memo: dict[int, str] = {}
+        self._memo: dict[int, dict[str, Any]] = {}  # the state keeps the arrays alive
 
-    def _array(self, a: np.ndarray) -> str:
-        key = self._memo.get(id(a))
-        if key is None:
-            key = self._memo[id(a)] = f"a{len(self.arrays)}"
-            self.arrays[key] = a
+    def _store(self, a: np.ndarray) -> str:
+        key = f"a{len(self.arrays)}"
+        self.arrays[key] = a
         return key
+
+    def _array(self, a: np.ndarray) -> dict[str, Any]:
+        node = self._memo.get(id(a))
+        if node is not None:
+            if "key" not in node:  # inline so far: store it once, refer to it twice
+                data = {_TAG: "nd", "key": self._store(a)}
+                node.clear()
+                node.update(data)
+            return {_TAG: "nd", "key": node["key"]}
+        kind = a.dtype.kind
+        if a.size <= _INLINE and kind in "biuf" and a.dtype.itemsize <= 8:
+            node = {_TAG: "nd", "dtype": a.dtype.str, "shape": list(a.shape)}
+            node["data"] = a.ravel().tolist()
+        else:
+            node = {_TAG: "nd", "key": self._store(a)}
+        self._memo[id(a)] = node
+        return node
 
     def encode(self, x: Any, where: str) -> Any:
         t = type(x)
@@ -108,7 +128,7 @@ class _Encoder:
                     f"cannot checkpoint {where}: a numpy array of dtype {x.dtype} (only bool and "
                     "numeric arrays are stored; the loader reads them with allow_pickle=False)"
                 )
-            return {_TAG: "nd", "key": self._array(x)}
+            return self._array(x)
         if isinstance(x, np.generic) and x.dtype.kind in _ARRAY_KINDS:
             kind, size = x.dtype.kind, x.dtype.itemsize
             if kind == "b":
@@ -117,7 +137,7 @@ class _Encoder:
                 return {_TAG: "np", "dtype": x.dtype.str, "value": int(x)}
             if kind == "f" and size <= 8:  # exact as a Python float
                 return {_TAG: "np", "dtype": x.dtype.str, "value": float(x)}
-            return {_TAG: "np0", "key": self._array(np.asarray(x))}  # long double, complex
+            return {_TAG: "np0", "key": self._store(np.asarray(x))}  # long double, complex
         raise CheckpointError(
             f"cannot checkpoint {where}: a {t.__module__}.{t.__qualname__} is not plain data "
             "(dict, list, tuple, str, int, float, bool, None, numpy scalar or numeric array); "
@@ -174,6 +194,15 @@ class _Decoder:
         if tag == "tuple":
             _check_keys(x, "items")
             return tuple(self.decode(v) for v in _list(x["items"]))
+        if tag == "nd" and "data" in x:
+            _check_keys(x, "dtype", "shape", "data")
+            dt, shape = _dtype(x["dtype"]), _list(x["shape"])
+            flat = np.array(_list(x["data"]))
+            if flat.ndim != 1 or (flat.size and flat.dtype.kind not in "biuf"):
+                raise ValueError(f"inline array data of {flat.dtype} and shape {flat.shape}")
+            if any(type(n) is not int or n < 0 for n in shape):
+                raise ValueError(f"array shape {shape!r}")
+            return flat.astype(dt).reshape(shape)
         if tag == "nd":
             _check_keys(x, "key")
             return self._array(x["key"])
@@ -329,16 +358,29 @@ def _read_header(folder: Path) -> dict[str, Any]:
     return header
 
 
-def _previous(folder: Path) -> tuple[int, set[str]]:
+#: what this process last wrote to each checkpoint folder (saves re-reading state.json)
+_written: dict[Path, tuple[tuple[int, int, int], int, frozenset[str]]] = {}
+
+
+def _stat_key(path: Path) -> tuple[int, int, int]:
+    st = path.stat()
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _previous(folder: Path) -> tuple[int, frozenset[str]]:
     """The serial for the next checkpoint and the keyframe files the current one names."""
-    if not (folder / STATE_FILE).is_file():
-        return 0, set()
+    path = folder / STATE_FILE
+    if not path.is_file():
+        return 0, frozenset()
+    mine = _written.get(folder.resolve())
+    if mine is not None and mine[0] == _stat_key(path):
+        return mine[1] + 1, mine[2]
     try:
         header = _read_header(folder)
-        return int(header["serial"]) + 1, {str(n) for n in header["state"]["keyframes"]}
+        return int(header["serial"]) + 1, frozenset(map(str, header["state"]["keyframes"]))
     except (CheckpointError, KeyError, TypeError, ValueError) as exc:
         log.warning("%s: replacing an unreadable checkpoint (%s)", folder, exc)
-        return 0, set()
+        return 0, frozenset()
 
 
 def write_checkpoint(
@@ -400,6 +442,7 @@ def write_checkpoint(
     _fsync_dir(folder)
     _write_bytes(folder / STATE_FILE, document)
     _fsync_dir(folder)
+    _written[folder.resolve()] = (_stat_key(folder / STATE_FILE), serial, frozenset(kf_files))
     keep = {arrays_file, *kf_files, *volumes}
     for p in folder.iterdir():
         stale = any(pat.fullmatch(p.name) for pat in _OURS) and p.name not in keep

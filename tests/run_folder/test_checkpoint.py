@@ -130,12 +130,13 @@ def test_codec_round_trip_keeps_types(tmp_path):
     assert rng.random() == np.random.default_rng(7).random()
 
 
-def test_an_array_met_twice_comes_back_as_one_object(tmp_path):
-    a = np.arange(3.0)
-    back = round_trip({"x": a, "y": [a]}, tmp_path)
-    assert back["x"] is back["y"][0]
-    tree, arrays = ck.encode({"x": a, "y": [a]})
-    assert len(arrays) == 1
+@pytest.mark.parametrize("size", [3, 1000])  # written inline into the JSON, or to the .npz
+def test_an_array_met_twice_comes_back_as_one_object(tmp_path, size):
+    a, b = np.arange(float(size)), np.arange(float(size))
+    back = round_trip({"x": a, "y": [a, b]}, tmp_path)
+    assert back["x"] is back["y"][0] and back["y"][1] is not back["x"]
+    tree, arrays = ck.encode({"x": a, "y": [a, b]})
+    assert len(arrays) == (1 if size == 3 else 2)
 
 
 _keys = st.one_of(
@@ -351,6 +352,10 @@ def _doctor(run: Path, edit) -> None:
     path.write_text(json.dumps(header))
 
 
+def _inline(**change):
+    return {"$t": "nd", "dtype": "<f8", "shape": [2], "data": [1.0, 2.0], **change}
+
+
 def _first_volume(h):
     return next(sm for sm in h["state"]["model"]["submaps"] if sm["volume"])
 
@@ -445,6 +450,11 @@ def test_a_doctored_checkpoint_cannot_run_code(run, tmp_path, how):
         (lambda h: h["state"].update(x={"$t": "dict", "items": [1]}), "pair"),
         (lambda h: h["state"].update(x={"$t": "tuple", "items": {}}), "JSON list"),
         (lambda h: h["state"].update(x={"$t": "nd", "key": "a0", "extra": 1}), "extra"),
+        (lambda h: h["state"].update(x=_inline(data=["1", "2"])), "inline array data"),
+        (lambda h: h["state"].update(x=_inline(data=[[1.0], [2.0]])), "inline array data"),
+        (lambda h: h["state"].update(x=_inline(shape=[3])), "cannot reshape"),
+        (lambda h: h["state"].update(x=_inline(shape=[-2, -1])), "array shape"),
+        (lambda h: h["state"].update(x=_inline(dtype="V8")), "'V8'"),
         (lambda h: h["state"]["keyframes"].append("kf_../../x.npz"), "not a checkpoint file"),
         (lambda h: h["state"]["keyframes"].append("kf_999999.npz"), "kf_999999.npz"),
         (lambda h: _first_volume(h).update(volume="/etc/passwd"), "not a checkpoint file"),
