@@ -36,6 +36,8 @@ from pathlib import Path
 from common import machine, sequence_path, write_result
 
 import slam
+from slam.run_folder import CHECKPOINT_DIR
+from slam.run_folder.checkpoint import STATE_FILE
 from slam.synthetic.damage import Damage, damage_sequence
 
 SLAM = [sys.executable, "-m", "slam.cli"]
@@ -103,7 +105,7 @@ def run_resume(seq: Path, work: Path, every: int) -> dict:
         stderr=subprocess.DEVNULL,
         start_new_session=True,
     )
-    state = out / "checkpoint" / "state.pkl"
+    state = out / CHECKPOINT_DIR / STATE_FILE
     t0 = time.perf_counter()
     while not state.exists() and proc.poll() is None:
         time.sleep(0.2)

@@ -17,7 +17,7 @@ import numpy as np
 from slam.config import SlamConfig
 from slam.data.base import Frame, Sequence
 from slam.data.checks import check_sequence
-from slam.errors import FrameReadError, SlamError
+from slam.errors import FrameReadError, RunFolderError, SlamError
 from slam.records import TrackingStatus
 from slam.results import RunResult
 from slam.run_folder import submaps_dir
@@ -100,7 +100,13 @@ def run(
         state, start = read_checkpoint(run_dir)
         if checkpoint_every is None:
             checkpoint_every = int(state.get("checkpoint_every", 0))
-        system.load_state_dict(state)
+        try:
+            system.load_state_dict(state)
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise RunFolderError(
+                f"{run_dir}: the checkpoint does not hold a complete state of this version "
+                f"({type(exc).__name__}: {exc}); start the run again with --overwrite"
+            ) from exc
         log.info("resuming %s at frame %d of %d", run_dir, start, len(indices))
     else:
         check_sequence(sequence, indices)

@@ -32,11 +32,11 @@ def test_7scenes_revisit_is_closed():
     assert m["ate_rmse_odometry_m"] < 0.05, m["ate_rmse_odometry_m"]  # measured 0.0375-0.0377
     revisits = [
         c
-        for c in res.loop_closer.records
+        for c in res.loop_closer.loops_json()["candidates"]
         if c["accepted"] and 900 <= c["query_frame"] <= 1000 and 200 <= c["match_frame"] <= 320
     ]
     assert revisits, [
-        (c["query_frame"], c["match_frame"], c["reason"]) for c in res.loop_closer.records
+        (c["query_frame"], c["match_frame"], c["reason"]) for c in res.loop_closer.loops_json()["candidates"]
     ]
 
     def disagreement_m(poses: np.ndarray) -> np.ndarray:

@@ -1,5 +1,7 @@
 """The stepwise system object: frames in one at a time, and its state saved and restored."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -31,9 +33,9 @@ def test_step_and_finish_equal_run(frames):
 
 
 def test_state_dict_round_trip_continues_the_run(frames, tmp_path):
-    """Half the frames, state to a new object (through pickle, as checkpoints are), the rest:
-    the same trajectory as one uninterrupted object, to the run-to-run spread."""
-    import pickle
+    """Half the frames, state to a new object (through the checkpoint codec: JSON and arrays),
+    the rest: the same trajectory as one uninterrupted object, to the run-to-run spread."""
+    from slam.run_folder.checkpoint import decode, encode
 
     seq, fr = frames
     cfg = config_from_dict(FAST)
@@ -43,7 +45,8 @@ def test_state_dict_round_trip_continues_the_run(frames, tmp_path):
     first = slam.Slam(cfg, spill_dir=str(tmp_path / "a"))
     for f in fr[:30]:
         first.step(f)
-    state = pickle.loads(pickle.dumps(first.state_dict()))
+    tree, arrays = encode(first.state_dict())
+    state = decode(json.loads(json.dumps(tree)), arrays)
     second = slam.Slam(cfg, spill_dir=str(tmp_path / "a"))
     second.load_state_dict(state)
     for f in fr[30:]:

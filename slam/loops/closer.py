@@ -16,7 +16,7 @@ import copy
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from types import MappingProxyType
 from typing import Any
 
@@ -348,31 +348,32 @@ class LoopCloser:
         here by id."""
         return {
             "graph": self.graph.state_dict(),
-            "database": copy.deepcopy(self.database),
+            "database": self.database.state_dict(),
             "keyframes": [kf.id for kf in self.keyframes],
             "path_length_m": list(self.path_length_m),
-            "records": copy.deepcopy(self.records),
+            "records": [asdict(r) for r in self.records],
             "ms": dict(self.ms),
             "optimisations": self.optimisations,
             "segment_parent": dict(self.segment_parent),
             "joins": copy.deepcopy(self.joins),
             "pending_joins": [
-                (c.id, k.id, copy.deepcopy(v), tag) for c, k, v, tag in self._pending_joins
+                (c.id, k.id, copy.deepcopy(vars(v)), tag) for c, k, v, tag in self._pending_joins
             ],
-            "verifier_rng": self.verifier._rng.bit_generator.state,
+            "verifier": self.verifier.state_dict(),
         }
 
     def load_state_dict(self, state: dict[str, Any], keyframes: dict[int, Keyframe]) -> None:
         self.graph = PoseGraph.from_state_dict(self.backend_cfg, state["graph"])
-        self.database = state["database"]
+        self.database = KeyframeDatabase.from_state_dict(state["database"])
         self.keyframes = [keyframes[i] for i in state["keyframes"]]
         self.path_length_m = list(state["path_length_m"])
-        self.records = state["records"]
+        self.records = [LoopRecord(**r) for r in state["records"]]
         self.ms = dict(state["ms"])
         self.optimisations = state["optimisations"]
         self.segment_parent = dict(state["segment_parent"])
         self.joins = state["joins"]
         self._pending_joins = [
-            (keyframes[c], keyframes[k], v, tag) for c, k, v, tag in state["pending_joins"]
+            (keyframes[c], keyframes[k], Verification(**v), tag)
+            for c, k, v, tag in state["pending_joins"]
         ]
-        self.verifier._rng.bit_generator.state = state["verifier_rng"]
+        self.verifier.load_state_dict(state["verifier"])

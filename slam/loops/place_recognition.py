@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -169,3 +170,54 @@ class KeyframeDatabase:
         scores = np.minimum(sub / np.maximum(norms, 1e-12)[:, None], qv).sum(axis=1)
         order = np.argsort(-scores)[:top_k]
         return [(self._ids[i], float(scores[i])) for i in order if scores[i] >= min_score]
+
+    # --- checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        """Plain data and arrays (a snapshot: adding keyframes later does not change it). The
+        keyframes' bag-of-words rows are stored stacked as one CSR matrix (``row_ptr``,
+        ``row_words``, ``row_weights``); the column-access cache is rebuilt when needed."""
+        rows = self._rows
+        ptr = np.zeros(len(rows) + 1, np.int64)
+        ptr[1:] = np.cumsum([r.nnz for r in rows], dtype=np.int64)
+        return {
+            "n_words": self.n_words,
+            "training_keyframes": self.training_keyframes,
+            "seed": self.seed,
+            "words": None if self.words is None else self.words.copy(),
+            "pending_ids": [kf_id for kf_id, _ in self._pending],
+            "pending_descriptors": [d.copy() for _, d in self._pending],
+            "training": [d.copy() for d in self._training],
+            "ids": list(self._ids),
+            "row_ptr": ptr,
+            "row_words": np.concatenate([r.indices for r in rows] or [np.zeros(0, np.int32)]),
+            "row_weights": np.concatenate([r.data for r in rows] or [np.zeros(0)]),
+            "doc_freq": None if self._doc_freq is None else self._doc_freq.copy(),
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, Any]) -> KeyframeDatabase:
+        """The database :meth:`state_dict` was taken from."""
+        db = cls(int(state["n_words"]), int(state["training_keyframes"]), int(state["seed"]))
+        words = state["words"]
+        db.words = None if words is None else np.array(words, np.uint8)
+        db._pending = [
+            (int(k), np.asarray(d))
+            for k, d in zip(state["pending_ids"], state["pending_descriptors"], strict=True)
+        ]
+        db._training = [np.asarray(d) for d in state["training"]]
+        db._ids = [int(k) for k in state["ids"]]
+        n = 0 if db.words is None else len(db.words)
+        ptr = np.asarray(state["row_ptr"], np.int64)
+        words_idx, weights = np.asarray(state["row_words"]), np.asarray(state["row_weights"])
+        if len(ptr) != len(db._ids) + 1:
+            raise ValueError(f"{len(ptr) - 1} bag-of-words rows for {len(db._ids)} keyframes")
+        db._rows = [
+            sp.csr_matrix(
+                (weights[a:b].copy(), words_idx[a:b].copy(), np.array([0, b - a])), shape=(1, n)
+            )
+            for a, b in zip(ptr[:-1], ptr[1:], strict=True)
+        ]
+        doc_freq = state["doc_freq"]
+        db._doc_freq = None if doc_freq is None else np.array(doc_freq, np.float64)
+        db._matrix = None
+        return db

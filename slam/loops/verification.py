@@ -115,6 +115,13 @@ class LoopVerifier:
         self.depth_max_m = depth_max_m
         self._rng = np.random.default_rng(seed)
 
+    def state_dict(self) -> dict:
+        """RANSAC's random state (checkpoints)."""
+        return {"rng": self._rng.bit_generator.state}
+
+    def load_state_dict(self, state: dict) -> None:
+        self._rng.bit_generator.state = state["rng"]
+
     def verify(self, query: KeyframeView, candidate: KeyframeView) -> Verification:
         cfg = self.cfg
         m = match_descriptors(query.features.descriptors, candidate.features.descriptors, cfg.ratio)

@@ -1,47 +1,386 @@
-"""Checkpoints of a run: the :class:`~slam.system.Slam` state in ``RUN_DIR/checkpoint/``.
+"""Checkpoints of a run: the :class:`~slam.system.Slam` state in ``RUN_DIR/checkpoint/``, in a
+format that cannot run code when it is loaded (JSON and ``.npz`` arrays read with
+``allow_pickle=False``; no pickle: a checkpoint folder from someone else is data, not a program).
 
-Layout: ``state.pkl`` (everything small, plus the position in the frame list), one file per
-keyframe (``kf_NNNNNN.pkl``: ORB features and depth; written once, keyframes never change) and
-the blocks of the submaps held in memory (``volume_SSSS_K.npz``, K = the checkpoint's serial).
-Submaps spilled to ``RUN_DIR/submaps/`` are final once written and only referenced. A checkpoint
-is replaced atomically: new files first, then ``state.pkl`` by rename, then stale volume files
-are removed, so a kill at any moment leaves the previous checkpoint or the new one, whole.
+Layout (format ``slam-checkpoint``, version :data:`FORMAT_VERSION`):
 
-Checkpoints are pickles written by this package for the same run folder: load only your own.
+- ``state.json``: the format name and version, the position in the frame list, the checkpoint
+  serial K and interval, the names of the files below and the state itself as one JSON document,
+  in which each numpy array is a reference into ``state_K.npz`` (arrays of at most 16 elements,
+  such as poses, are written inline, exactly);
+- ``state_K.npz``: the arrays of ``state.json``;
+- ``kf_NNNNNN.npz``: one keyframe (ORB features and depth), its JSON document in the entry
+  ``__doc__`` and its arrays beside it; written once (keyframes never change), except that a
+  file the current ``state.json`` does not name (left by a killed write) is written again;
+- ``volume_SSSS_K.npz``: the blocks of submap SSSS, held in memory at checkpoint K.
+
+Submaps spilled to ``RUN_DIR/submaps/`` are final once written and only referenced, by their
+name relative to the run folder (resolved against the folder being resumed, whatever the
+current directory; a name that leaves the folder is refused).
+
+The codec takes nested plain data: dict (any keys of the types below; dicts with non-string
+keys keep their key types), list, tuple, str, int (any size), float (nan and inf too), bool,
+None, numpy scalars and numpy arrays of bool or numeric dtype. Anything else is refused when
+the checkpoint is *written*, naming where in the state it sits.
+
+A checkpoint is replaced atomically: new files first (each fsynced, written under a temporary
+name and renamed), then ``state.json`` by rename, then files the new state does not name are
+removed, so a kill at any moment leaves the previous checkpoint or the new one, whole.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
-import pickle
+import re
 import time
-from pathlib import Path
+from collections.abc import Mapping
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
 
-from slam.errors import SlamError
+from slam.errors import RunFolderError
+from slam.run_folder.layout import CHECKPOINT_DIR
 
 log = logging.getLogger(__name__)
 
-CHECKPOINT_DIR = "checkpoint"
-STATE_FILE = "state.pkl"
+STATE_FILE = "state.json"
+FORMAT_NAME = "slam-checkpoint"
+FORMAT_VERSION = 1
+#: the state file of checkpoints written before the format had a name and version (pickles)
+OLD_STATE_FILE = "state.pkl"
+
+_TAG = "$t"  # JSON objects with this key are encoded values, not plain dicts
+_DOC = "__doc__"  # the JSON document inside a keyframe's .npz
+_ARRAY_KINDS = frozenset("biufc")  # bool, signed, unsigned, float, complex
+_INLINE = 16  # arrays of at most this many elements are written into the JSON document
+_STATE_ARRAYS = re.compile(r"state_\d+\.npz")
+_KEYFRAME = re.compile(r"kf_\d{6,}\.npz")
+_VOLUME = re.compile(r"volume_\d{4,}_\d+\.npz")
+_OURS = (_STATE_ARRAYS, _KEYFRAME, _VOLUME)
+_RESTART = "start the run again with `slam run SEQUENCE --out RUN_DIR --overwrite`"
 
 
-def _atomic_pickle(path: Path, obj: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
+class CheckpointError(RunFolderError):
+    """A checkpoint cannot be written (the state holds something that is not plain data) or
+    read (missing, damaged, another format or version, or not a checkpoint at all)."""
+
+
+# --- codec
+class _Encoder:
+    """Plain data to a JSON-able tree. Small arrays (poses, intrinsics) are written inline
+    (exactly: float32 and float16 values are exact as Python floats), the others go to
+    :attr:`arrays`, referenced by key. An array met twice comes back as one object, as with
+    pickle (an inline one moves to :attr:`arrays` when met again)."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+        self._memo: dict[int, dict[str, Any]] = {}  # the state keeps the arrays alive
+
+    def _store(self, a: np.ndarray) -> str:
+        key = f"a{len(self.arrays)}"
+        self.arrays[key] = a
+        return key
+
+    def _array(self, a: np.ndarray) -> dict[str, Any]:
+        node = self._memo.get(id(a))
+        if node is not None:
+            if "key" not in node:  # inline so far: store it once, refer to it twice
+                data = {_TAG: "nd", "key": self._store(a)}
+                node.clear()
+                node.update(data)
+            return {_TAG: "nd", "key": node["key"]}
+        kind = a.dtype.kind
+        if a.size <= _INLINE and kind in "biuf" and a.dtype.itemsize <= 8:
+            node = {_TAG: "nd", "dtype": a.dtype.str, "shape": list(a.shape)}
+            node["data"] = a.ravel().tolist()
+        else:
+            node = {_TAG: "nd", "key": self._store(a)}
+        self._memo[id(a)] = node
+        return node
+
+    def encode(self, x: Any, where: str) -> Any:
+        t = type(x)
+        if x is None or t is bool or t is int or t is str or t is float:
+            return x
+        if t is list:
+            return [self.encode(v, f"{where}[{i}]") for i, v in enumerate(x)]
+        if t is dict:
+            if _TAG not in x and all(type(k) is str for k in x):
+                return {k: self.encode(v, f"{where}.{k}") for k, v in x.items()}
+            return {
+                _TAG: "dict",
+                "items": [
+                    [self.encode(k, f"{where} (key {k!r})"), self.encode(v, f"{where}[{k!r}]")]
+                    for k, v in x.items()
+                ],
+            }
+        if t is tuple:
+            return {
+                _TAG: "tuple",
+                "items": [self.encode(v, f"{where}[{i}]") for i, v in enumerate(x)],
+            }
+        if t is np.ndarray:
+            if x.dtype.kind not in _ARRAY_KINDS:
+                raise CheckpointError(
+                    f"cannot checkpoint {where}: a numpy array of dtype {x.dtype} (only bool and "
+                    "numeric arrays are stored; the loader reads them with allow_pickle=False)"
+                )
+            return self._array(x)
+        if isinstance(x, np.generic) and x.dtype.kind in _ARRAY_KINDS:
+            kind, size = x.dtype.kind, x.dtype.itemsize
+            if kind == "b":
+                return {_TAG: "np", "dtype": x.dtype.str, "value": bool(x)}
+            if kind in "iu":
+                return {_TAG: "np", "dtype": x.dtype.str, "value": int(x)}
+            if kind == "f" and size <= 8:  # exact as a Python float
+                return {_TAG: "np", "dtype": x.dtype.str, "value": float(x)}
+            return {_TAG: "np0", "key": self._store(np.asarray(x))}  # long double, complex
+        raise CheckpointError(
+            f"cannot checkpoint {where}: a {t.__module__}.{t.__qualname__} is not plain data "
+            "(dict, list, tuple, str, int, float, bool, None, numpy scalar or numeric array); "
+            "its component's state_dict() must turn it into plain data"
+        )
+
+
+def _dtype(spec: Any) -> np.dtype:
+    if type(spec) is not str:
+        raise ValueError(f"dtype {spec!r} is not a string")
+    dt = np.dtype(spec)
+    if dt.kind not in _ARRAY_KINDS or dt.hasobject:
+        raise ValueError(f"dtype {spec!r} is not bool or numeric")
+    return dt
+
+
+def _check_keys(x: dict, *keys: str) -> None:
+    if set(x) != {_TAG, *keys}:
+        raise ValueError(f"encoded {x.get(_TAG)!r} has keys {sorted(x)}, expected {sorted(keys)}")
+
+
+class _Decoder:
+    """The inverse of :class:`_Encoder`: only JSON values and the given arrays come out."""
+
+    def __init__(self, arrays: Mapping[str, np.ndarray]) -> None:
+        self.arrays = arrays
+
+    def _array(self, key: Any) -> np.ndarray:
+        if type(key) is not str:
+            raise ValueError(f"array reference {key!r} is not a string")
+        if key not in self.arrays:
+            raise ValueError(f"array {key!r} is referenced but not stored")
+        return self.arrays[key]
+
+    def decode(self, x: Any) -> Any:
+        t = type(x)
+        if x is None or t is bool or t is int or t is str or t is float:
+            return x
+        if t is list:
+            return [self.decode(v) for v in x]
+        if t is not dict:
+            raise ValueError(f"unexpected JSON value of type {t.__name__}")
+        tag = x.get(_TAG)
+        if tag is None:
+            return {k: self.decode(v) for k, v in x.items()}
+        if tag == "dict":
+            _check_keys(x, "items")
+            out = {}
+            for item in _list(x["items"]):
+                if type(item) is not list or len(item) != 2:
+                    raise ValueError(f"dict item {item!r} is not a [key, value] pair")
+                out[self.decode(item[0])] = self.decode(item[1])  # unhashable key: TypeError
+            return out
+        if tag == "tuple":
+            _check_keys(x, "items")
+            return tuple(self.decode(v) for v in _list(x["items"]))
+        if tag == "nd" and "data" in x:
+            _check_keys(x, "dtype", "shape", "data")
+            dt, shape = _dtype(x["dtype"]), _list(x["shape"])
+            flat = np.array(_list(x["data"]))
+            if flat.ndim != 1 or (flat.size and flat.dtype.kind not in "biuf"):
+                raise ValueError(f"inline array data of {flat.dtype} and shape {flat.shape}")
+            if any(type(n) is not int or n < 0 for n in shape):
+                raise ValueError(f"array shape {shape!r}")
+            return flat.astype(dt).reshape(shape)
+        if tag == "nd":
+            _check_keys(x, "key")
+            return self._array(x["key"])
+        if tag == "np":
+            _check_keys(x, "dtype", "value")
+            dt, value = _dtype(x["dtype"]), x["value"]
+            ok = {"b": (bool,), "i": (int,), "u": (int,), "f": (int, float)}.get(dt.kind, ())
+            if type(value) not in ok:
+                raise ValueError(f"numpy {dt} scalar with value {value!r}")
+            return dt.type(value)
+        if tag == "np0":
+            _check_keys(x, "key")
+            a = self._array(x["key"])
+            if a.ndim != 0:
+                raise ValueError(f"scalar array {x['key']!r} has shape {a.shape}")
+            return a[()]
+        raise ValueError(f"unknown encoded type {tag!r}")
+
+
+def _list(x: Any) -> list:
+    if type(x) is not list:
+        raise ValueError(f"expected a JSON list, got {type(x).__name__}")
+    return x
+
+
+def encode(obj: Any, where: str = "state") -> tuple[Any, dict[str, np.ndarray]]:
+    """``obj`` (plain data) as a JSON-able tree and the arrays it references, by key.
+    Raises :class:`CheckpointError` naming the first value that is not plain data."""
+    enc = _Encoder()
+    return enc.encode(obj, where), enc.arrays
+
+
+def decode(tree: Any, arrays: Mapping[str, np.ndarray]) -> Any:
+    """The inverse of :func:`encode` (``ValueError`` or ``TypeError`` if ``tree`` is not one of
+    its outputs or names an array that ``arrays`` lacks)."""
+    return _Decoder(arrays).decode(tree)
+
+
+# --- files
+def _fsync_dir(folder: Path) -> None:
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _tmp(path: Path) -> Path:
+    return path.with_name(f".{path.name}.tmp")
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    tmp = _tmp(path)
     with open(tmp, "wb") as f:
-        pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL)
+        f.write(data)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
 
 
-def _atomic_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    tmp = path.with_name(f".{path.stem}.tmp.npz")
-    np.savez(tmp, **arrays)
+def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    tmp = _tmp(path)
+    with open(tmp, "wb") as f:
+        np.savez(f, allow_pickle=False, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+def _json(tree: Any) -> bytes:
+    return json.dumps(tree, separators=(",", ":")).encode()
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` file, read without pickle; only bool and numeric arrays."""
+    z = np.load(path, allow_pickle=False)
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ValueError("not an .npz archive")
+    with z:
+        out = {k: z[k] for k in z.files}
+    for k, a in out.items():
+        if a.dtype.kind not in _ARRAY_KINDS:
+            raise ValueError(f"array {k!r} has dtype {a.dtype}, not bool or numeric")
+    return out
+
+
+def _write_document(path: Path, obj: Any, where: str) -> None:
+    tree, arrays = encode(obj, where)
+    _write_npz(path, {_DOC: np.frombuffer(_json(tree), np.uint8), **arrays})
+
+
+def _read_document(path: Path) -> Any:
+    arrays = _read_npz(path)
+    doc = arrays.pop(_DOC, None)
+    if doc is None or doc.dtype != np.uint8 or doc.ndim != 1:
+        raise ValueError(f"no {_DOC} entry (uint8 JSON text)")
+    return decode(json.loads(doc.tobytes().decode()), arrays)
+
+
+def _run_relative(run_dir: Path, path: Any, where: str) -> str:
+    """``path`` (absolute or relative to the current directory) by its name in the run folder."""
+    base = run_dir.resolve()
+    full = Path(path).resolve()
+    try:
+        return full.relative_to(base).as_posix()
+    except ValueError:
+        raise CheckpointError(
+            f"cannot checkpoint {where}: submap file {path} is not inside the run folder "
+            f"{run_dir}; spilled submaps must live in RUN_DIR/submaps/"
+        ) from None
+
+
+def _in_run(run_dir: Path, name: Any, where: str) -> Path:
+    """A file named relative to the run folder, refusing names that leave it."""
+    if type(name) is not str or not name:
+        raise CheckpointError(f"{where}: file name {name!r} is not a non-empty string; {_RESTART}")
+    p = PurePosixPath(name)
+    if p.is_absolute() or ".." in p.parts or "\\" in name or Path(name).is_absolute():
+        raise CheckpointError(
+            f"{where}: file name {name!r} leaves the run folder {run_dir} (absolute or '..'); "
+            f"checkpoints name files inside it only: {_RESTART}"
+        )
+    return run_dir / p
+
+
+def _own_name(name: Any, pattern: re.Pattern[str], where: str) -> str:
+    if type(name) is not str or not pattern.fullmatch(name):
+        raise ValueError(f"{where}: {name!r} is not a checkpoint file name")
+    return name
+
+
+def _read_header(folder: Path) -> dict[str, Any]:
+    """``state.json``, checked to be ours and of this version."""
+    path = folder / STATE_FILE
+    try:
+        header = json.loads(path.read_bytes().decode())
+    except (OSError, ValueError, RecursionError) as exc:
+        raise CheckpointError(
+            f"{path}: not a checkpoint of this package (unreadable or not JSON: {exc}); {_RESTART}"
+        ) from None
+    found = header.get("format") if isinstance(header, dict) else None
+    if found != FORMAT_NAME:
+        raise CheckpointError(
+            f"{path}: not a checkpoint of this package (format {found!r}, expected "
+            f"{FORMAT_NAME!r}); {_RESTART}"
+        )
+    version = header.get("version")
+    if version != FORMAT_VERSION:
+        raise CheckpointError(
+            f"{path}: checkpoint format version {version!r}, this version of the package reads "
+            f"version {FORMAT_VERSION} only; {_RESTART}"
+        )
+    return header
+
+
+#: what this process last wrote to each checkpoint folder (saves re-reading state.json)
+_written: dict[Path, tuple[tuple[int, int, int], int, frozenset[str]]] = {}
+
+
+def _stat_key(path: Path) -> tuple[int, int, int]:
+    st = path.stat()
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _previous(folder: Path) -> tuple[int, frozenset[str]]:
+    """The serial for the next checkpoint and the keyframe files the current one names."""
+    path = folder / STATE_FILE
+    if not path.is_file():
+        return 0, frozenset()
+    mine = _written.get(folder.resolve())
+    if mine is not None and mine[0] == _stat_key(path):
+        return mine[1] + 1, mine[2]
+    try:
+        header = _read_header(folder)
+        return int(header["serial"]) + 1, frozenset(map(str, header["state"]["keyframes"]))
+    except (CheckpointError, KeyError, TypeError, ValueError) as exc:
+        log.warning("%s: replacing an unreadable checkpoint (%s)", folder, exc)
+        return 0, frozenset()
 
 
 def write_checkpoint(
@@ -49,93 +388,138 @@ def write_checkpoint(
 ) -> Path:
     """Write ``state`` (from :meth:`Slam.state_dict`) with ``position``, the number of entries
     of the frame list already processed, and ``every``, the checkpoint interval (kept for the
-    resumed run). Returns the checkpoint folder."""
+    resumed run). Returns the checkpoint folder. Raises :class:`CheckpointError`, before
+    anything is replaced, if the state holds something that is not plain data."""
     t0 = time.perf_counter()
-    folder = Path(run_dir) / CHECKPOINT_DIR
+    run_dir = Path(run_dir)
+    folder = run_dir / CHECKPOINT_DIR
     folder.mkdir(parents=True, exist_ok=True)
-    previous = _read_state_file(folder)
-    serial = 0 if previous is None else int(previous["serial"]) + 1
+    serial, committed = _previous(folder)
 
-    kf_files = []
-    for kf in state["keyframes"]:
-        name = f"kf_{kf['id']:06d}.pkl"
-        if not (folder / name).is_file():
-            _atomic_pickle(folder / name, kf)
-        kf_files.append(name)
-    submaps = []
-    volume_files = set()
-    for sm in state["model"]["submaps"]:
+    # encode everything first: a state that is not plain data changes nothing on disk
+    keyframes = state["keyframes"]
+    kf_files = [f"kf_{int(kf['id']):06d}.npz" for kf in keyframes]
+    submaps, volumes = [], {}
+    for j, sm in enumerate(state["model"]["submaps"]):
         sm = dict(sm)
+        where = f"state.model.submaps[{j}]"
         if sm["volume"] is not None:
-            name = f"volume_{sm['id']:04d}_{serial}.npz"
-            _atomic_npz(folder / name, sm["volume"])
+            name = f"volume_{int(sm['id']):04d}_{serial}.npz"
+            volume = sm["volume"]
+            if type(volume) is not dict or any(
+                type(k) is not str or type(v) is not np.ndarray for k, v in volume.items()
+            ):
+                raise CheckpointError(
+                    f"cannot checkpoint {where}.volume: not a dict of named numpy arrays"
+                )
+            encode(volume, f"{where}.volume")  # checks the dtypes
+            volumes[name] = volume
             sm["volume"] = name
-            volume_files.add(name)
+        if sm.get("path") is not None:
+            sm["path"] = _run_relative(run_dir, sm["path"], f"{where}.path")
         submaps.append(sm)
-    core = {
-        **state,
-        "keyframes": kf_files,
-        "model": {**state["model"], "submaps": submaps},
-        "position": int(position),
+    core = {**state, "keyframes": kf_files, "model": {**state["model"], "submaps": submaps}}
+    tree, arrays = encode(core, "state")
+    arrays_file = f"state_{serial}.npz"
+    header = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
         "serial": serial,
+        "position": int(position),
         "checkpoint_every": int(every),
+        "arrays": arrays_file,
+        "state": tree,
     }
-    _atomic_pickle(folder / STATE_FILE, core)
-    for p in folder.glob("volume_*.npz"):
-        if p.name not in volume_files:
+    document = _json(header)
+
+    # new files, then the state document by rename, then what the new state does not name
+    for i, (kf, name) in enumerate(zip(keyframes, kf_files, strict=True)):
+        if name not in committed or not (folder / name).is_file():
+            _write_document(folder / name, kf, f"state.keyframes[{i}]")
+    for name, volume in volumes.items():
+        _write_npz(folder / name, volume)
+    _write_npz(folder / arrays_file, arrays)
+    _fsync_dir(folder)
+    _write_bytes(folder / STATE_FILE, document)
+    _fsync_dir(folder)
+    _written[folder.resolve()] = (_stat_key(folder / STATE_FILE), serial, frozenset(kf_files))
+    keep = {arrays_file, *kf_files, *volumes}
+    for p in folder.iterdir():
+        stale = any(pat.fullmatch(p.name) for pat in _OURS) and p.name not in keep
+        if stale or (p.name.startswith(".") and p.name.endswith(".tmp")):
             p.unlink(missing_ok=True)
     log.debug(
-        "checkpoint %d at frame position %d written in %.0f ms",
+        "checkpoint %d at frame position %d written in %.0f ms (%d kB state document)",
         serial,
         position,
         (time.perf_counter() - t0) * 1e3,
+        len(document) // 1024,
     )
     return folder
 
 
-def _read_state_file(folder: Path) -> dict[str, Any] | None:
-    path = folder / STATE_FILE
-    if not path.is_file():
-        return None
-    try:
-        with open(path, "rb") as f:
-            return pickle.load(f)
-    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
-        raise SlamError(f"{path}: unreadable checkpoint ({exc}); start the run again") from exc
-
-
 def has_checkpoint(run_dir: str | Path) -> bool:
-    return (Path(run_dir) / CHECKPOINT_DIR / STATE_FILE).is_file()
+    """Whether the run folder holds a checkpoint (of any format: :func:`read_checkpoint` says
+    whether it can be read)."""
+    folder = Path(run_dir) / CHECKPOINT_DIR
+    return (folder / STATE_FILE).is_file() or (folder / OLD_STATE_FILE).is_file()
 
 
 def read_checkpoint(run_dir: str | Path) -> tuple[dict[str, Any], int]:
-    """The state written by :func:`write_checkpoint` and its frame-list position."""
-    folder = Path(run_dir) / CHECKPOINT_DIR
-    core = _read_state_file(folder)
-    if core is None:
-        raise SlamError(
+    """The state written by :func:`write_checkpoint` and its frame-list position. Nothing read
+    can run code; a checkpoint that is missing, damaged, of another format or version raises
+    :class:`CheckpointError` saying what was found."""
+    run_dir = Path(run_dir)
+    folder = run_dir / CHECKPOINT_DIR
+    if not (folder / STATE_FILE).is_file():
+        if (folder / OLD_STATE_FILE).is_file():
+            raise CheckpointError(
+                f"{folder / OLD_STATE_FILE}: a checkpoint in the old pickle format, which this "
+                f"version does not load (loading a pickle can run any code); {_RESTART}"
+            )
+        raise CheckpointError(
             f"{run_dir}: no checkpoint to resume from ({folder / STATE_FILE} is missing); "
             "runs write one every N frames with `slam run --checkpoint-every N`"
         )
+    header = _read_header(folder)
+    current = folder / STATE_FILE
     try:
+        current = folder / _own_name(header["arrays"], _STATE_ARRAYS, "arrays")
+        core = decode(header["state"], _read_npz(current))
+        if not isinstance(core, dict) or not isinstance(core.get("model"), dict):
+            raise ValueError("the state is not a dict with a model")
         keyframes = []
-        for name in core["keyframes"]:
-            with open(folder / name, "rb") as f:
-                keyframes.append(pickle.load(f))
+        for name in _list(core["keyframes"]):
+            current = folder / _own_name(name, _KEYFRAME, "keyframes")
+            kf = _read_document(current)
+            if not isinstance(kf, dict):
+                raise ValueError("a keyframe is not a dict")
+            keyframes.append(kf)
+        current = folder / STATE_FILE
         submaps = []
-        for sm in core["model"]["submaps"]:
+        for j, sm in enumerate(_list(core["model"]["submaps"])):
             sm = dict(sm)
             if sm["volume"] is not None:
-                with np.load(folder / sm["volume"]) as z:
-                    sm["volume"] = {k: z[k] for k in z.files}
-            elif sm["path"] is not None and not Path(sm["path"]).is_file():
-                raise SlamError(f"submap file {sm['path']} is missing")
+                current = folder / _own_name(sm["volume"], _VOLUME, f"submap {j} volume")
+                sm["volume"] = _read_npz(current)
+                current = folder / STATE_FILE
+            if sm.get("path") is not None:
+                path = _in_run(run_dir, sm["path"], f"{current}: submap {sm['id']} path")
+                if not path.is_file():
+                    raise CheckpointError(
+                        f"{current}: submap file {path} is missing (spilled submaps stay in "
+                        f"RUN_DIR/submaps/ until the run ends); {_RESTART}"
+                    )
+                sm["path"] = str(path)
             submaps.append(sm)
-    except (OSError, pickle.UnpicklingError, EOFError, KeyError, ValueError) as exc:
-        raise SlamError(
-            f"{folder}: incomplete or damaged checkpoint ({exc}); start the run again"
-        ) from exc
-    position = int(core.pop("position"))
-    core.pop("serial", None)
+        position = int(header["position"])
+        every = int(header.get("checkpoint_every", 0))
+    except CheckpointError:
+        raise
+    except Exception as exc:  # any damage: a clear error, never a traceback or a guess
+        raise CheckpointError(
+            f"{current}: damaged checkpoint ({type(exc).__name__}: {exc}); {_RESTART}"
+        ) from None
     state = {**core, "keyframes": keyframes, "model": {**core["model"], "submaps": submaps}}
+    state["checkpoint_every"] = every
     return state, position

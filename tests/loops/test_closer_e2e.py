@@ -116,7 +116,7 @@ def test_no_false_loop_without_a_revisit(name, request):
 
 def test_alias_is_rejected_by_the_odometry_consistency_check(alias_sweep):
     _, _, res = alias_sweep
-    reasons = [c["reason"] for c in res.loop_closer.records]
+    reasons = [c.reason for c in res.loop_closer.records]
     assert any(r.startswith("inconsistent with odometry") for r in reasons), reasons
 
 

@@ -123,7 +123,7 @@ def test_kill_after_first_checkpoint_then_resume(synth_loop_320, tmp_path):
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    state = out / "checkpoint" / "state.pkl"
+    state = out / "checkpoint" / "state.json"
     t0 = time.time()
     while not state.exists() and proc.poll() is None and time.time() - t0 < 300:
         time.sleep(0.1)
