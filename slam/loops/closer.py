@@ -1,18 +1,13 @@
 """Loop closure: keyframes go into the pose graph with odometry edges; each new keyframe queries
 the place-recognition index for revisits, candidates are verified geometrically and checked
 against the current estimate, accepted loops become robust graph edges and the graph is
-optimised. :func:`elastic_correction` then bends every frame pose with its keyframes.
-
-Map segments: when tracking is lost and cannot be relocalised, a new segment starts (its first
-keyframe has no edge to the old ones and its own prior). A verified revisit between two segments
-cannot be checked against odometry (there is none between them), so segments are joined only
-when ``loop.join_verifications`` such revisits agree on where one segment lies in the other;
-the joined segment is moved there rigidly, its prior dropped, and the graph optimised.
+optimised. :func:`slam.backend.finalise.elastic_correction` then bends every frame pose with its
+keyframes. Revisits between map segments join them (:mod:`slam.loops.segments`): the joined
+segment is moved rigidly into the other's frame, its prior dropped, and the graph optimised.
 """
 
 from __future__ import annotations
 
-import copy
 import logging
 import time
 from collections.abc import Mapping
@@ -27,6 +22,7 @@ from slam.config import BackendConfig, LoopConfig
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import Keyframe
 from slam.loops.place_recognition import KeyframeDatabase
+from slam.loops.segments import Join, MapSegments, PendingJoin
 from slam.loops.verification import LoopVerifier, Verification, registration_information
 from slam.records import LoopRecord
 
@@ -61,9 +57,6 @@ class LoopCloser:
         default_factory=lambda: {"loop_detection": 0.0, "optimisation": 0.0, "graph": 0.0}
     )
     optimisations: int = 0
-    segment_parent: dict[int, int] = field(default_factory=dict)  # union-find of joined segments
-    joins: list[dict[str, Any]] = field(default_factory=list)
-    _pending_joins: list[tuple[Keyframe, Keyframe, Verification, int]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.graph = PoseGraph(self.backend_cfg)
@@ -71,6 +64,12 @@ class LoopCloser:
             self.loop_cfg.vocabulary_words, self.loop_cfg.vocabulary_keyframes
         )
         self.verifier = LoopVerifier(self.loop_cfg, self.depth_max_m)
+        self.segments = MapSegments(self.loop_cfg)
+
+    @property
+    def joins(self) -> list[dict[str, Any]]:
+        """The map segments joined so far (``metrics.json``'s ``segment_joins``)."""
+        return self.segments.joins
 
     @property
     def loops_accepted(self) -> int:
@@ -93,42 +92,36 @@ class LoopCloser:
         """Current (corrected) estimate of a keyframe's pose."""
         return self.graph.nodes[kf_id]
 
-    # --- graph building
-    def _odometry_information(self, prev: Keyframe, kf: Keyframe, T_prev_kf: np.ndarray):
-        c = self.backend_cfg
-        sigma = c.odometry_sigma_m + c.odometry_drift_per_m * (
-            translation_norm(T_prev_kf) + np.radians(rotation_angle_deg(T_prev_kf))
-        )
-        if kf.depth_m is None or prev.depth_m is None or kf.K is None:
-            return np.eye(6) / sigma**2
-        info, n = registration_information(
-            kf.depth_m,
-            prev.depth_m,
-            kf.K,
-            T_prev_kf,
-            c.odometry_information_threshold_m,
-            self.depth_max_m,
-        )
-        if n < 10:  # nothing overlaps: a weak isotropic edge keeps the chain connected
-            return np.eye(6) / (10 * sigma) ** 2
-        return info / sigma**2
-
     # --- map segments
     def segment_root(self, segment: int) -> int:
         """The segment id that stands for all segments joined with ``segment``."""
-        self.segment_parent.setdefault(segment, segment)
-        while self.segment_parent[segment] != segment:
-            segment = self.segment_parent[segment]
-        return segment
+        return self.segments.root(segment)
 
     def same_map(self, a: Keyframe, b: Keyframe) -> bool:
         """Whether two keyframes lie in one map component (their segments are joined)."""
-        return self.segment_root(a.segment) == self.segment_root(b.segment)
+        return self.segments.same_map(a, b)
 
-    def add_keyframe(self, kf: Keyframe, link: KeyframeLink | None = None) -> list[dict[str, Any]]:
+    def add_keyframe(self, kf: Keyframe, link: KeyframeLink | None = None) -> list[LoopRecord]:
         """Add a keyframe (odometry pose in ``kf.T_world_cam``): graph node and its edge (from
-        the previous keyframe by odometry, or as ``link`` says), then revisit detection.
-        Returns the loop records of this keyframe."""
+        the previous keyframe by odometry, or as ``link`` says), then revisit detection, loop
+        edges, segment joins and optimisation. Returns the loop records of this keyframe."""
+        self._add_to_graph(kf, link)
+        cfg = self.loop_cfg
+        if not cfg.enabled or len(kf.features) == 0 or kf.depth_m is None:
+            return []
+        records, accepted, joining = self._detect(kf)
+        join = self.segments.find_join(self.T_world_kf) if joining else None
+        if join is not None:
+            self._join(join)
+        s = self.backend_cfg.loop_sigma_m
+        for tag, ver in accepted:
+            rec = self.records[tag]
+            self.add_loop(rec.match_kf, kf.id, ver.T_candidate_query, ver.information / s**2, tag)
+        if accepted or join is not None:
+            self.optimize()
+        return records
+
+    def _add_to_graph(self, kf: Keyframe, link: KeyframeLink | None) -> None:
         t0 = time.perf_counter()
         self.segment_root(kf.segment)
         if not self.keyframes or (link is not None and link.kind == "segment"):
@@ -146,158 +139,84 @@ class LoopCloser:
                 )
             else:
                 self.graph.add_node(kf.id, self.graph.nodes[prev.id] @ T_prev_kf)
-                info = self._odometry_information(prev, kf, T_prev_kf)
+                info = odometry_information(prev, kf, T_prev_kf, self.backend_cfg, self.depth_max_m)
                 self.graph.add_edge(Edge(prev.id, kf.id, T_prev_kf, info, "odometry"))
             self.path_length_m.append(self.path_length_m[-1] + translation_norm(T_prev_kf))
         self.keyframes.append(kf)
         self.ms["graph"] += (time.perf_counter() - t0) * 1e3
 
-        records: list[LoopRecord] = []
-        cfg = self.loop_cfg
-        if not cfg.enabled or len(kf.features) == 0 or kf.depth_m is None:
-            return records
+    def _detect(
+        self, kf: Keyframe
+    ) -> tuple[list[LoopRecord], list[tuple[int, Verification]], bool]:
+        """Revisit candidates of ``kf`` from place recognition, each verified and (in the same
+        map) checked against odometry; verified revisits across map segments wait to join
+        them. Returns (this keyframe's records, the accepted ones as (position in
+        ``self.records``, verification), whether a revisit across segments was verified)."""
         t0 = time.perf_counter()
+        cfg = self.loop_cfg
         self.database.observe(kf.features.descriptors)
         candidates = self.database.query(kf.features.descriptors, cfg.max_candidates, cfg.min_score)
-        accepted = []
-        joining = []
+        records: list[LoopRecord] = []
+        accepted: list[tuple[int, Verification]] = []
+        joining = False
         for cand_id, score in candidates:
             cand = self.keyframes[cand_id]
             ver = self.verifier.verify(kf.view(), cand.view())
-            same_map = self.same_map(cand, kf)
-            if ver.accepted and same_map:
-                self._check_consistency(cand, kf, ver)
-            elif ver.accepted:
+            across = ver.accepted and not self.same_map(cand, kf)
+            if across:
                 ver.accepted = False
                 ver.reason = (
                     f"verified across map segments {cand.segment} and {kf.segment}: waits for "
-                    f"{self.loop_cfg.join_verifications} agreeing revisits to join them"
+                    f"{cfg.join_verifications} agreeing revisits to join them"
                 )
-                joining.append((cand, ver))
+            elif ver.accepted:
+                T_pred = inv_T(self.T_world_kf(cand.id)) @ self.T_world_kf(kf.id)
+                path = self.path_length_m[kf.id] - self.path_length_m[cand.id]
+                check_consistency(ver, T_pred, path, cfg)
             rec = ver.record(kf, cand, score)
+            self.records.append(rec)
             records.append(rec)
             log.log(
                 logging.INFO if ver.accepted else logging.DEBUG,
                 "loop candidate frame %d -> %d (keyframes %d -> %d, score %.3f): %s",
-                kf.index,
-                cand.index,
-                kf.id,
-                cand.id,
-                score,
-                ver.reason,
-            )
+                kf.index, cand.index, kf.id, cand.id, score, ver.reason,
+            )  # fmt: skip
             if ver.accepted:
-                accepted.append((cand, ver))
-            elif any(c is cand and v is ver for c, v in joining):
-                self._pending_joins.append((cand, kf, ver, len(self.records) + len(records) - 1))
+                accepted.append((len(self.records) - 1, ver))
+            elif across:
+                self.segments.pending.append(PendingJoin(cand, kf, ver, len(self.records) - 1))
+                joining = True
         # index the keyframe that just left the "recent" window
         old = len(self.keyframes) - 1 - cfg.exclude_recent_keyframes
         if old >= 0:
             k_old = self.keyframes[old]
             self.database.add(k_old.id, k_old.features.descriptors)
         self.ms["loop_detection"] += (time.perf_counter() - t0) * 1e3
-        self.records.extend(records)
+        return records, accepted, joining
 
-        joined = self._try_join() if joining else False
-        if accepted:
-            s = self.backend_cfg.loop_sigma_m
-            for cand, ver in accepted:
-                tag = (
-                    len(self.records)
-                    - len(records)
-                    + next(k for k, r in enumerate(records) if r.match_kf == cand.id)
-                )
-                self.add_loop(cand.id, kf.id, ver.T_candidate_query, ver.information / s**2, tag)
-        if accepted or joined:
-            self.optimize()
-        return records
-
-    def _try_join(self) -> bool:
-        """Join two map segments when enough verified revisits between them agree on the
-        transform that puts one into the other's frame. Returns True when segments joined."""
-        c = self.loop_cfg
-        pending = [
-            p for p in self._pending_joins if not self.same_map(p[0], p[1])
-        ]  # pairs whose segments were joined meanwhile are dropped
-        self._pending_joins = pending
-        for a_root, b_root in {
-            (self.segment_root(p[0].segment), self.segment_root(p[1].segment)) for p in pending
-        }:
-            group = [
-                p
-                for p in pending
-                if (self.segment_root(p[0].segment), self.segment_root(p[1].segment))
-                == (a_root, b_root)
-            ]
-            # where segment b's graph frame lies in segment a's, by each revisit
-            moves = [
-                self.T_world_kf(cand.id) @ ver.T_candidate_query @ inv_T(self.T_world_kf(kf.id))
-                for cand, kf, ver, _ in group
-            ]
-            for T_ab in moves:
-                agree = [
-                    j
-                    for j, T in enumerate(moves)
-                    if translation_norm(inv_T(T_ab) @ T) < c.consistency_m
-                    and rotation_angle_deg(inv_T(T_ab) @ T) < c.consistency_deg
-                ]
-                if len(agree) >= c.join_verifications:
-                    self._join(a_root, b_root, T_ab, [group[j] for j in agree])
-                    return True
-        return False
-
-    def _join(
-        self,
-        a_root: int,
-        b_root: int,
-        T_ab: np.ndarray,
-        evidence: list[tuple[Keyframe, Keyframe, Verification, int]],
-    ) -> None:
-        members = {kf.id for kf in self.keyframes if self.segment_root(kf.segment) == b_root}
+    def _join(self, join: Join) -> None:
+        """Move segment ``b``'s keyframes rigidly into ``a``'s frame, drop its prior, add the
+        agreeing revisits as loop edges and mark their records accepted."""
+        members = {kf.id for kf in self.keyframes if self.segment_root(kf.segment) == join.b_root}
         for key in members:
-            self.graph.nodes[key] = T_ab @ self.graph.nodes[key]
+            self.graph.nodes[key] = join.T_ab @ self.graph.nodes[key]
         self.graph.anchors -= members
-        self.segment_parent[b_root] = a_root
         s = self.backend_cfg.loop_sigma_m
-        for cand, kf, ver, tag in evidence:
-            self.add_loop(cand.id, kf.id, ver.T_candidate_query, ver.information / s**2, tag)
+        for p in join.evidence:
+            ver, tag = p.verification, p.record
+            self.add_loop(p.candidate.id, p.query.id, ver.T_candidate_query,
+                          ver.information / s**2, tag)  # fmt: skip
             if 0 <= tag < len(self.records):
                 self.records[tag].accepted = True
-                self.records[
-                    tag
-                ].reason = f"accepted: joins map segment {kf.segment} to segment {cand.segment}"
-        self.joins.append(
-            {
-                "segment": b_root,
-                "into": a_root,
-                "keyframe": max(kf.id for _, kf, _, _ in evidence),
-                "revisits": len(evidence),
-            }
-        )
-        self._pending_joins = [p for p in self._pending_joins if not self.same_map(p[0], p[1])]
+                self.records[tag].reason = (
+                    f"accepted: joins map segment {p.query.segment} to segment "
+                    f"{p.candidate.segment}"
+                )
+        self.segments.joined(join)
         log.info(
             "map segment %d joined to segment %d by %d agreeing revisits",
-            b_root,
-            a_root,
-            len(evidence),
-        )
-
-    def _check_consistency(self, cand: Keyframe, kf: Keyframe, ver: Verification) -> None:
-        """Reject a loop whose relative pose disagrees with the current estimate by more than
-        odometry could have drifted along the path between the two keyframes."""
-        c = self.loop_cfg
-        T_pred = inv_T(self.T_world_kf(cand.id)) @ self.T_world_kf(kf.id)
-        err = inv_T(T_pred) @ ver.T_candidate_query
-        path = self.path_length_m[kf.id] - self.path_length_m[cand.id]
-        tol_m = c.consistency_m + c.consistency_per_m * path
-        tol_deg = c.consistency_deg + c.consistency_deg_per_m * path
-        if translation_norm(err) > tol_m or rotation_angle_deg(err) > tol_deg:
-            ver.accepted = False
-            ver.reason = (
-                f"inconsistent with odometry: {translation_norm(err):.2f} m / "
-                f"{rotation_angle_deg(err):.1f} deg off after {path:.1f} m of path "
-                f"(tolerance {tol_m:.2f} m / {tol_deg:.1f} deg)"
-            )
+            join.b_root, join.a_root, len(join.evidence),
+        )  # fmt: skip
 
     def add_loop(
         self, i: int, j: int, T_i_j: np.ndarray, information: np.ndarray, tag: int = -1
@@ -354,11 +273,7 @@ class LoopCloser:
             "records": [asdict(r) for r in self.records],
             "ms": dict(self.ms),
             "optimisations": self.optimisations,
-            "segment_parent": dict(self.segment_parent),
-            "joins": copy.deepcopy(self.joins),
-            "pending_joins": [
-                (c.id, k.id, copy.deepcopy(vars(v)), tag) for c, k, v, tag in self._pending_joins
-            ],
+            "segments": self.segments.state_dict(),
             "verifier": self.verifier.state_dict(),
         }
 
@@ -370,10 +285,40 @@ class LoopCloser:
         self.records = [LoopRecord(**r) for r in state["records"]]
         self.ms = dict(state["ms"])
         self.optimisations = state["optimisations"]
-        self.segment_parent = dict(state["segment_parent"])
-        self.joins = state["joins"]
-        self._pending_joins = [
-            (keyframes[c], keyframes[k], Verification(**v), tag)
-            for c, k, v, tag in state["pending_joins"]
-        ]
+        self.segments.load_state_dict(state["segments"], keyframes)
         self.verifier.load_state_dict(state["verifier"])
+
+
+def odometry_information(
+    prev: Keyframe, kf: Keyframe, T_prev_kf: np.ndarray, c: BackendConfig, depth_max_m: float
+) -> np.ndarray:
+    """The information of the odometry edge ``prev -> kf``: the shape of the two keyframes'
+    depth registration (which motions their overlap constrains), scaled by a sigma that grows
+    with the motion the edge spans."""
+    sigma = c.odometry_sigma_m + c.odometry_drift_per_m * (
+        translation_norm(T_prev_kf) + np.radians(rotation_angle_deg(T_prev_kf))
+    )
+    if kf.depth_m is None or prev.depth_m is None or kf.K is None:
+        return np.eye(6) / sigma**2
+    info, n = registration_information(
+        kf.depth_m, prev.depth_m, kf.K, T_prev_kf, c.odometry_information_threshold_m, depth_max_m
+    )
+    if n < 10:  # nothing overlaps: a weak isotropic edge keeps the chain connected
+        return np.eye(6) / (10 * sigma) ** 2
+    return info / sigma**2
+
+
+def check_consistency(ver: Verification, T_pred: np.ndarray, path_m: float, c: LoopConfig) -> None:
+    """Reject a verified loop whose relative pose disagrees with the current estimate
+    ``T_pred`` (candidate -> query) by more than odometry could have drifted along the
+    ``path_m`` travelled between the two keyframes."""
+    err = inv_T(T_pred) @ ver.T_candidate_query
+    tol_m = c.consistency_m + c.consistency_per_m * path_m
+    tol_deg = c.consistency_deg + c.consistency_deg_per_m * path_m
+    if translation_norm(err) > tol_m or rotation_angle_deg(err) > tol_deg:
+        ver.accepted = False
+        ver.reason = (
+            f"inconsistent with odometry: {translation_norm(err):.2f} m / "
+            f"{rotation_angle_deg(err):.1f} deg off after {path_m:.1f} m of path "
+            f"(tolerance {tol_m:.2f} m / {tol_deg:.1f} deg)"
+        )

@@ -24,6 +24,7 @@ from slam.config import BackendConfig, LoopConfig, config_from_dict
 from slam.keyframe import FeatureSet, Keyframe
 from slam.loops.closer import LoopCloser
 from slam.loops.place_recognition import KeyframeDatabase
+from slam.loops.segments import PendingJoin
 from slam.loops.verification import Verification
 from slam.run_folder import checkpoint as ck
 from slam.run_folder import submaps_dir
@@ -226,14 +227,24 @@ def test_pending_joins_are_plain_data_and_restored(tmp_path):
     ver = Verification(
         True, "ok", 40, 31, 0.775, 0.9, 0.6, np.diag([1.0, 2, 3, 1]), np.eye(6) * 4.5
     )
-    closer._pending_joins = [(kfs[0], kfs[2], ver, 5)]
+    closer.segments.pending = [PendingJoin(kfs[0], kfs[2], ver, 5)]
     state = closer.state_dict()
     ck.encode(state)  # plain data
     other = LoopCloser(LoopConfig(), BackendConfig())
     other.load_state_dict(round_trip(state, tmp_path), kfs)
-    ((c, k, v, tag),) = other._pending_joins
+    ((c, k, v, tag),) = [
+        (p.candidate, p.query, p.verification, p.record) for p in other.segments.pending
+    ]
     assert (c, k, tag) == (kfs[0], kfs[2], 5)
-    for name in ("accepted", "reason", "matches", "inliers", "inlier_ratio", "icp_fitness", "overlap"):
+    for name in (
+        "accepted",
+        "reason",
+        "matches",
+        "inliers",
+        "inlier_ratio",
+        "icp_fitness",
+        "overlap",
+    ):
         assert getattr(v, name) == getattr(ver, name)
     np.testing.assert_array_equal(v.T_candidate_query, ver.T_candidate_query)
     np.testing.assert_array_equal(v.information, ver.information)
@@ -304,7 +315,9 @@ def test_layout_and_exact_round_trip(run, tmp_path):
     again, _ = read_checkpoint(run)
     same(state, again)
     # a Slam loaded from it gives back the same state (the volumes' block order aside)
-    system = slam.Slam(config_from_dict(state["config"]), has_color=True, spill_dir=str(submaps_dir(run)))
+    system = slam.Slam(
+        config_from_dict(state["config"]), has_color=True, spill_dir=str(submaps_dir(run))
+    )
     system.load_state_dict(state)
     out = system.state_dict()
     for a, b in zip(out["model"]["submaps"], state["model"]["submaps"], strict=True):
