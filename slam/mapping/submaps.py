@@ -72,6 +72,33 @@ class Submap:
         return len(self.T_anchor_views)
 
 
+class SpillStore:
+    """Where finished submaps wait on disk, so memory holds the active submap only: a folder
+    (a run folder's submaps folder, kept for resuming; default a temporary folder removed with
+    this object) and a background writer thread (numpy's file writes release the GIL, so a
+    spill runs beside tracking)."""
+
+    def __init__(self, spill_dir: str | Path | None) -> None:
+        if spill_dir is None:
+            self.folder = Path(tempfile.mkdtemp(prefix="slam-submaps-"))
+            cleanup_dir: Path | None = self.folder
+        else:
+            self.folder = Path(spill_dir)
+            self.folder.mkdir(parents=True, exist_ok=True)
+            cleanup_dir = None
+        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam-spill")
+        weakref.finalize(self, _cleanup, self._writer, cleanup_dir)
+
+    def spill(self, sm: Submap) -> None:
+        """Start writing ``sm``'s volume to disk and drop it from memory."""
+        assert sm.volume is not None
+        sm.path = self.folder / f"submap_{sm.id:04d}.npz"
+        arrays = sm.volume.to_arrays()
+        sm.volume = None  # the arrays hold it until the file does
+        sm.saving = self._writer.submit(_write, arrays, sm.path)
+        log.debug("submap %d spilling to %s", sm.id, sm.path)
+
+
 class SubmapMap:
     """The frontend's model: ``integrate`` and ``raycast`` take ``T_world_cam`` in the odometry
     frame and act on the active submap. A new submap starts seeded with the previous one's
@@ -80,27 +107,16 @@ class SubmapMap:
     submap are fused into the previous one too, so neighbouring submaps overlap."""
 
     def __init__(
-        self, cfg: MappingConfig, with_color: bool = True, spill_dir: str | Path | None = None
+        self, cfg: MappingConfig, has_color: bool = True, spill_dir: str | Path | None = None
     ) -> None:
         """``spill_dir``: where finished submaps wait (a run folder's ``submaps/``, kept for
         resuming); default a temporary folder removed with this object."""
         self.cfg = cfg
-        self.with_color = with_color
+        self.has_color = has_color
         self.submaps: list[Submap] = []
         self._K: np.ndarray | None = None
         self._size: tuple[int, int] | None = None
-        self._spill_dir: Path | None = None
-        self._writer: ThreadPoolExecutor | None = None
-        if cfg.spill_submaps:
-            if spill_dir is None:
-                self._spill_dir = Path(tempfile.mkdtemp(prefix="slam-submaps-"))
-                cleanup_dir: Path | None = self._spill_dir
-            else:
-                self._spill_dir = Path(spill_dir)
-                self._spill_dir.mkdir(parents=True, exist_ok=True)
-                cleanup_dir = None
-            self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam-spill")
-            weakref.finalize(self, _cleanup, self._writer, cleanup_dir)
+        self._store = SpillStore(spill_dir) if cfg.spill_submaps else None
 
     def volume(self, sm: Submap) -> TSDFVolume:
         """The submap's volume, loaded from disk when it was spilled."""
@@ -110,7 +126,7 @@ class SubmapMap:
         if sm.volume is not None:
             return sm.volume
         assert sm.path is not None
-        return TSDFVolume.load(sm.path, self.cfg, self.with_color)
+        return TSDFVolume.load(sm.path, self.cfg, self.has_color)
 
     def flush(self) -> None:
         """Wait until every submap being spilled is on disk."""
@@ -120,15 +136,9 @@ class SubmapMap:
                 sm.saving = None
 
     def _spill(self, sm: Submap) -> None:
-        """Move a finished submap to disk (written by a background thread, off the tracking
-        loop): memory then holds the active submap only."""
-        if self._writer is None or self._spill_dir is None or sm.volume is None:
-            return
-        sm.path = self._spill_dir / f"submap_{sm.id:04d}.npz"
-        arrays = sm.volume.to_arrays()
-        sm.volume = None  # the arrays hold it until the file does
-        sm.saving = self._writer.submit(_write, arrays, sm.path)
-        log.debug("submap %d spilling to %s", sm.id, sm.path)
+        """Move a finished submap to disk (when ``mapping.spill_submaps``)."""
+        if self._store is not None and sm.volume is not None:
+            self._store.spill(sm)
 
     # --- submap lifecycle
     @property
@@ -159,7 +169,7 @@ class SubmapMap:
             len(self.submaps),
             anchor_kf,
             np.asarray(T_world_anchor, float).copy(),
-            TSDFVolume(self.cfg, self.with_color, capacity),
+            TSDFVolume(self.cfg, self.has_color, capacity),
             overlaps_previous=continuous and bool(self.submaps),
         )
         if self.submaps and continuous:
@@ -263,7 +273,7 @@ class SubmapMap:
         """Re-fuse every submap (or those whose ids are in ``include``) into one volume, each
         under ``T_world_anchors[submap.id]`` (default: the anchors' odometry poses)."""
         cfg = self.cfg
-        out = TSDFVolume(cfg, self.with_color)
+        out = TSDFVolume(cfg, self.has_color)
         # a rendered view shows only surfaces that passed the ray-caster's weight threshold in
         # their submap, i.e. were seen by several frames already: one view is enough evidence
         out.mesh_weight_threshold = 1.0
@@ -341,7 +351,7 @@ class SubmapMap:
                     np.asarray(d["T_world_anchor"]),
                     None
                     if volume is None
-                    else TSDFVolume.from_arrays(volume, self.cfg, self.with_color),
+                    else TSDFVolume.from_arrays(volume, self.cfg, self.has_color),
                     list(np.asarray(d["T_anchor_views"])),
                     None if d["path"] is None else Path(d["path"]),
                     overlaps_previous=d["overlaps_previous"],

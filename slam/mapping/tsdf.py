@@ -88,13 +88,13 @@ class TSDFVolume:
     """A TSDF volume in world coordinates (metres)."""
 
     def __init__(
-        self, cfg: MappingConfig, with_color: bool = True, block_count: int | None = None
+        self, cfg: MappingConfig, has_color: bool = True, block_count: int | None = None
     ) -> None:
         self.cfg = cfg
-        self.with_color = with_color and cfg.integrate_color
+        self.has_color = has_color and cfg.integrate_color
         names = self._attribute_names()
         dtypes = [o3c.float32] * len(names)
-        channels = [[1], [1]] + ([[3]] if self.with_color else [])
+        channels = [[1], [1]] + ([[3]] if self.has_color else [])
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
             names,
             dtypes,
@@ -139,7 +139,7 @@ class TSDFVolume:
         blocks = self.vbg.compute_unique_block_coordinates(
             depth, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
         )
-        if self.with_color and color is not None:
+        if self.has_color and color is not None:
             col = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.uint8)))
             self.vbg.integrate(
                 blocks, depth, col, K_t, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
@@ -192,7 +192,7 @@ class TSDFVolume:
         if blocks is None or blocks.shape[0] == 0:
             return Rendering(np.zeros((height, width), np.float32), None, None)
         attrs = ["depth"] + (["normal"] if with_normals else [])
-        if with_color and self.with_color:
+        if with_color and self.has_color:
             attrs.append("color")
         out = self.vbg.ray_cast(
             blocks,
@@ -273,12 +273,12 @@ class TSDFVolume:
         cls,
         arrays: dict[str, np.ndarray],
         cfg: MappingConfig,
-        with_color: bool = True,
+        has_color: bool = True,
     ) -> TSDFVolume:
         """A volume holding the blocks of :meth:`to_arrays` (its ``n_integrated``, the frames
         fused into it, caps the weight thresholds early on; 1 when absent)."""
         keys = np.ascontiguousarray(arrays["keys"], np.int32)
-        vol = cls(cfg, with_color, block_count=max(int(1.5 * len(keys)), 1000))
+        vol = cls(cfg, has_color, block_count=max(int(1.5 * len(keys)), 1000))
         if len(keys):
             values = [o3c.Tensor(np.ascontiguousarray(arrays[n])) for n in vol._attribute_names()]
             vol.vbg.hashmap().insert(o3c.Tensor(keys), values)
@@ -286,17 +286,17 @@ class TSDFVolume:
         return vol
 
     def _attribute_names(self) -> list[str]:
-        return ["tsdf", "weight"] + (["color"] if self.with_color else [])
+        return ["tsdf", "weight"] + (["color"] if self.has_color else [])
 
     def save(self, path: str | Path) -> None:
         """Save the blocks (uncompressed ``.npz`` of :meth:`to_arrays`) for checkpointing."""
         np.savez(path, **self.to_arrays())
 
     @classmethod
-    def load(cls, path: str | Path, cfg: MappingConfig, with_color: bool = True) -> TSDFVolume:
+    def load(cls, path: str | Path, cfg: MappingConfig, has_color: bool = True) -> TSDFVolume:
         """A volume saved with :meth:`save` (or its arrays written with ``np.savez``)."""
         with np.load(path) as z:
-            return cls.from_arrays({k: z[k] for k in z.files}, cfg, with_color)
+            return cls.from_arrays({k: z[k] for k in z.files}, cfg, has_color)
 
     @property
     def n_blocks(self) -> int:

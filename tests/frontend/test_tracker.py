@@ -63,7 +63,7 @@ class World:
         return self._frames[i]
 
     def model(self, frames: range) -> SubmapMap:
-        m = SubmapMap(MappingConfig(), with_color=True)
+        m = SubmapMap(MappingConfig(), has_color=True)
         for i in frames:
             f = self.frame(i)
             m.integrate(f.depth_m, f.color, f.K, self.poses[i])

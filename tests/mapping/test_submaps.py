@@ -20,7 +20,7 @@ def _sphere():
 def _fuse(cfg: MappingConfig) -> tuple[SubmapMap, list[np.ndarray]]:
     """Three submaps of 8 views each around a sphere; every 4th view is a keyframe."""
     mesh, center, _ = _sphere()
-    model = SubmapMap(cfg, with_color=False)
+    model = SubmapMap(cfg, has_color=False)
     poses = []
     for k, ang in enumerate(np.linspace(0, 2 * np.pi, 24, endpoint=False)):
         T = look_at(center + 1.3 * np.array([np.cos(ang), np.sin(ang), 0.3]), center)

@@ -10,7 +10,7 @@ def _fuse_sphere(voxel: float):
     center, radius = np.array([0.0, 0.0, 1.0]), 0.4
     sphere = o3d.geometry.TriangleMesh.create_sphere(radius, resolution=120).translate(center)
     K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
-    vol = TSDFVolume(MappingConfig(voxel_size_m=voxel, depth_max_m=4.0), with_color=False)
+    vol = TSDFVolume(MappingConfig(voxel_size_m=voxel, depth_max_m=4.0), has_color=False)
     poses = []
     for ang in np.linspace(0, 2 * np.pi, 12, endpoint=False):
         for elev in (-0.4, 0.4):
@@ -81,7 +81,7 @@ def test_fused_surface_renders_on_the_pinhole_convention_at_every_resolution():
     sphere = o3d.geometry.TriangleMesh.create_sphere(radius, resolution=200).translate(center)
     K = np.array([[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]])
     voxel = 0.01
-    vol = TSDFVolume(MappingConfig(voxel_size_m=voxel, depth_max_m=4.0), with_color=False)
+    vol = TSDFVolume(MappingConfig(voxel_size_m=voxel, depth_max_m=4.0), has_color=False)
     eye = center + np.array([0.0, -1.3, 0.3])
     T = look_at(eye, center)
     for dx in (-0.3, 0.0, 0.3):  # views around one side of the sphere, looking at its centre
@@ -111,7 +111,7 @@ def test_save_and_load_restore_the_same_volume(tmp_path):
     same ray-cast, same mesh, same frame count (it caps the weight thresholds early on)."""
     vol, center, radius, K, poses = _fuse_sphere(0.02)
     vol.save(tmp_path / "v.npz")
-    back = TSDFVolume.load(tmp_path / "v.npz", vol.cfg, with_color=False)
+    back = TSDFVolume.load(tmp_path / "v.npz", vol.cfg, has_color=False)
     assert back.n_integrated == vol.n_integrated == len(poses)
     assert back.n_blocks == vol.n_blocks
     a, b = vol.render(K, 320, 240, poses[3]), back.render(K, 320, 240, poses[3])
@@ -163,7 +163,7 @@ def test_raycast_colour_sits_on_its_surface_point():
         for dy in (-0.05, 0.05)
     ]
     views = _striped_plane_views(K, 320, 240, poses, period)
-    vol = TSDFVolume(MappingConfig(voxel_size_m=voxel, depth_max_m=4.0), with_color=True)
+    vol = TSDFVolume(MappingConfig(voxel_size_m=voxel, depth_max_m=4.0), has_color=True)
     for T, (depth, color) in zip(poses, views):
         vol.integrate(depth, color, K, T)
     T = look_at([0.02, 0.01, 0.0], [0.02, 0.01, 1.5], up=(0, -1, 0))
