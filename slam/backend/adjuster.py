@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from slam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust
+from slam.backend.ba_problem import BAProblem, BAResult
+from slam.backend.bundle_adjustment import bundle_adjust
 from slam.backend.landmarks import LandmarkMap
 from slam.backend.pose_graph import Edge
 from slam.config import BAConfig

@@ -50,18 +50,15 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any
 
 import gtsam
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from slam.backend.landmarks import LandmarkMap
+from slam.backend.ba_problem import BAProblem, BAResult, BundleAdjustmentError
 from slam.backend.pose_graph import Edge
 from slam.config import BAConfig
-from slam.errors import SlamError
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import SCALE_FACTOR
 
@@ -72,152 +69,6 @@ VIRTUAL_BASELINE_M = 0.08
 #: chi^2 95% quantiles: 3 dof (pixel + depth), 2 dof (pixel only)
 CHI2_3DOF = 7.815
 CHI2_2DOF = 5.991
-
-
-class BundleAdjustmentError(SlamError):
-    """The bundle adjustment problem is malformed (e.g. an observation names an unknown pose)."""
-
-
-@dataclass
-class BAProblem:
-    """Observations for bundle adjustment: observation m is keyframe ``kf[m]`` seeing landmark
-    ``landmark[m]`` (0 .. L-1; ``landmark_ids`` names them in the landmark map) at pixel
-    ``uv[m]`` with measured depth ``depth[m]`` (<= 0: no depth, pixel only); ``feature[m]`` is
-    the keypoint's row in the keyframe's features; ``level[m]`` its ORB pyramid level (its pixel
-    noise is ``pixel_sigma_px * SCALE_FACTOR**level``, as in ORB-SLAM; None: all 0). ``K``:
-    intrinsics of the pixels."""
-
-    K: np.ndarray
-    kf: np.ndarray
-    feature: np.ndarray
-    landmark: np.ndarray
-    landmark_ids: np.ndarray
-    uv: np.ndarray
-    depth: np.ndarray
-    level: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.kf)
-
-    @property
-    def n_landmarks(self) -> int:
-        return len(self.landmark_ids)
-
-    @classmethod
-    def from_landmarks(
-        cls, landmarks: LandmarkMap, kf_ids: Iterable[int] | None = None, min_observations: int = 2
-    ) -> BAProblem:
-        """The observations of ``landmarks`` among ``kf_ids`` (default all keyframes) of
-        landmarks seen at least ``min_observations`` times there."""
-        kf, feat, lm = landmarks.observations(kf_ids, min_observations)
-        ids, compact = np.unique(lm, return_inverse=True)
-        uv = np.zeros((len(kf), 2))
-        depth = np.zeros(len(kf))
-        level = np.zeros(len(kf), np.int64)
-        K = np.eye(3)
-        for k in np.unique(kf):
-            key = kf == k
-            f = landmarks.keyframes[int(k)].features
-            uv[key] = f.pixels[feat[key]]
-            depth[key] = f.points_cam[feat[key], 2]
-            level[key] = f.levels()[feat[key]]
-        if len(kf):
-            K = landmarks.K(landmarks.keyframes[int(kf[0])])
-        return cls(K, kf, feat, compact.astype(np.int64), ids, uv, depth, level)
-
-    def pixel_scale(self) -> np.ndarray:
-        """Per observation: its pixel noise in units of ``pixel_sigma_px`` (1 at level 0)."""
-        if self.level is None:
-            return np.ones(len(self))
-        return SCALE_FACTOR ** self.level.astype(float)
-
-    def cap_tracks(self, max_observations: int) -> BAProblem:
-        """The problem with each landmark seen by at most ``max_observations`` keyframes,
-        evenly spaced along its track (first and last kept). A landmark seen from 150
-        keyframes (a desk filmed for a minute) ties all of them together: the reduced camera
-        system turns dense, and time and memory grow with the square of the track length,
-        for little information the spaced observations do not already carry (tum-fr1-xyz,
-        223 keyframes, cap 20: 2.3 s / 0.48 GB instead of 5.7 s / 0.93 GB, ATE 12.1 mm instead
-        of 12.6 mm)."""
-        if max_observations <= 0 or len(self) == 0:
-            return self
-        order = np.lexsort((self.kf, self.landmark))
-        lm_sorted = self.landmark[order]
-        counts = np.bincount(self.landmark, minlength=self.n_landmarks)
-        n = counts[lm_sorted]
-        if n.max() <= max_observations:
-            return self
-        rank = np.arange(len(order)) - np.searchsorted(lm_sorted, lm_sorted)
-        # ranks round(j * (n - 1) / (max - 1)), j = 0 .. max - 1
-        step = (n - 1) / max(max_observations - 1, 1)
-        j = np.round(rank / step)
-        keep_sorted = (n <= max_observations) | (np.abs(j * step - rank) < 0.5)
-        keep = np.zeros(len(self), bool)
-        keep[order[keep_sorted]] = True
-        return self.subset(keep)
-
-    def subset(self, keep: np.ndarray, min_observations: int = 2) -> BAProblem:
-        """The problem with only the observations ``keep`` (mask) of landmarks that keep at
-        least ``min_observations`` of them; landmarks re-indexed."""
-        counts = np.bincount(self.landmark[keep], minlength=self.n_landmarks)
-        keep = keep & (counts[self.landmark] >= min_observations)
-        ids, compact = np.unique(self.landmark[keep], return_inverse=True)
-        return BAProblem(
-            self.K,
-            self.kf[keep],
-            self.feature[keep],
-            compact.astype(np.int64),
-            self.landmark_ids[ids],
-            self.uv[keep],
-            self.depth[keep],
-            None if self.level is None else self.level[keep],
-        )
-
-
-@dataclass
-class BAResult:
-    """Outcome of :func:`bundle_adjust`. ``poses``: ``T_world_kf`` of every keyframe given
-    (optimised, or unchanged when not in the problem; ``keyframes`` were optimised); ``points`` (L, 3): landmark positions (world) for ``landmark_ids``.
-    Reprojection RMSE (pixels, over the inlier observations) at the starting and the
-    optimised estimate; ``outliers``: observations removed (``outlier_kf``/``outlier_feature``
-    name them). ``skipped``: why nothing was optimised (then ``poses`` is empty)."""
-
-    poses: dict[int, np.ndarray] = field(default_factory=dict)
-    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    landmark_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    reprojection_rmse_px_before: float = 0.0
-    reprojection_rmse_px_after: float = 0.0
-    landmarks: int = 0
-    observations: int = 0
-    outliers: int = 0
-    outlier_kf: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    outlier_feature: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    keyframes: int = 0
-    iterations: int = 0
-    ms: float = 0.0
-    error_before: float = 0.0
-    error_after: float = 0.0
-    max_pose_change_m: float = 0.0
-    max_pose_change_deg: float = 0.0
-    skipped: str | None = None
-
-    def summary(self) -> dict[str, Any]:
-        """The ``metrics.json`` view (plain JSON types)."""
-        out: dict[str, Any] = {
-            "reprojection_rmse_px_before": round(self.reprojection_rmse_px_before, 4),
-            "reprojection_rmse_px_after": round(self.reprojection_rmse_px_after, 4),
-            "landmarks": self.landmarks,
-            "observations": self.observations,
-            "outliers": self.outliers,
-            "keyframes": self.keyframes,
-            "iterations": self.iterations,
-            "ms": round(self.ms, 1),
-            "max_pose_change_m": round(self.max_pose_change_m, 5),
-            "max_pose_change_deg": round(self.max_pose_change_deg, 4),
-        }
-        if self.skipped:
-            out["skipped"] = self.skipped
-        return out
 
 
 def _x(k: int) -> int:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from slam.backend.bundle_adjustment import BAProblem
+from slam.backend.ba_problem import BAProblem
 from slam.geometry import exp_se3, inv_T, make_T
 from slam.keyframe import SCALE_FACTOR
 

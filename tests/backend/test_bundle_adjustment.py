@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from slam.backend.adjuster import BundleAdjuster
-from slam.backend.bundle_adjustment import BAProblem, bundle_adjust, initial_points, residuals
+from slam.backend.ba_problem import BAProblem
+from slam.backend.bundle_adjustment import bundle_adjust, initial_points, residuals
 from slam.backend.pose_graph import Edge
 from slam.camera import scale_intrinsics
 from slam.config import BAConfig, config_from_dict

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slam.backend.bundle_adjustment import BAProblem
+from slam.backend.ba_problem import BAProblem
 from slam.backend.feature_matching import (
     colour_intrinsics,
     distinct_features,
