@@ -186,6 +186,34 @@ def _normal_equations(J: np.ndarray, w: np.ndarray, r: np.ndarray) -> tuple[np.n
     return (Jw.T @ J).astype(np.float64), (Jw.T @ r).astype(np.float64)
 
 
+def _photometric_equations(
+    intensity: np.ndarray,
+    photo: np.ndarray,
+    Qp: np.ndarray,
+    uf: np.ndarray,
+    vf: np.ndarray,
+    inv_z: np.ndarray,
+    fx: np.float32,
+    fy: np.float32,
+    weight: float,
+    min_scale: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Normal equations of the photometric term: source points ``Qp`` (target camera frame)
+    with their ``intensity``, projected to ``(uf, vf)`` in the target's ``photo`` (intensity
+    and its gradients), residuals less their median (a global brightness offset), Huber
+    weights at 1.345 robust scales, times ``weight``."""
+    smp = _sample(photo, uf, vf)
+    rp = smp[:, 0] - intensity
+    rp -= np.float32(np.median(rp))  # global brightness offset
+    s_p = _robust_scale(rp, min_scale)
+    wp = weight * _huber_weights(rp, 1.345 * s_p) / s_p**2
+    g = np.empty((len(Qp), 3), np.float32)  # d r / d Q
+    g[:, 0] = smp[:, 1] * fx * inv_z
+    g[:, 1] = smp[:, 2] * fy * inv_z
+    g[:, 2] = -(g[:, 0] * Qp[:, 0] + g[:, 1] * Qp[:, 1]) * inv_z
+    return _normal_equations(_cross_jacobian(Qp, g), wp.astype(np.float32), rp)
+
+
 def joint_align(
     source: RgbdImage,
     target: RgbdImage,
@@ -254,18 +282,10 @@ def joint_align(
                 vis = np.flatnonzero(np.abs(zt - Qi[:, 2]) < gate)
                 if len(vis) >= 6:
                     pi = idx[vis]
-                    Qp = Qi[vis]
-                    smp = _sample(tgt.photo, uf[pi], vf[pi])
-                    rp = smp[:, 0] - src.intensity[pi]
-                    rp -= np.float32(np.median(rp))  # global brightness offset
-                    s_p = _robust_scale(rp, min_pho_scale)
-                    wp = photometric_weight * _huber_weights(rp, 1.345 * s_p) / s_p**2
-                    iz = inv_z[pi]
-                    g = np.empty((len(pi), 3), np.float32)  # d r / d Q
-                    g[:, 0] = smp[:, 1] * fx * iz
-                    g[:, 1] = smp[:, 2] * fy * iz
-                    g[:, 2] = -(g[:, 0] * Qp[:, 0] + g[:, 1] * Qp[:, 1]) * iz
-                    Hp, bp = _normal_equations(_cross_jacobian(Qp, g), wp.astype(np.float32), rp)
+                    Hp, bp = _photometric_equations(
+                        src.intensity[pi], tgt.photo, Qi[vis], uf[pi], vf[pi], inv_z[pi], fx, fy,
+                        photometric_weight, min_pho_scale,
+                    )  # fmt: skip
                     H += Hp
                     b += bp
             # a whisper of damping: directions nothing constrains (sliding along a bare wall)
