@@ -172,8 +172,6 @@ class Slam:
         self.stage_ms["loop"] += (t_loop - t_tracked) * 1e3
         self.stage_ms["integration"] += (t_end - t_loop) * 1e3
         self.elapsed_s += t_end - t_start
-        status.timestamp = frame.timestamp
-        status.segment = self.recovery.segment
         self.statuses.append(status)
         return FrameResult(frame.index, frame.timestamp, status, T, loops)
 

@@ -43,6 +43,7 @@ from slam.keyframe import Keyframe
 
 log = logging.getLogger(__name__)
 
+
 class LandmarkError(SlamError):
     """The landmark map was asked about a keyframe it does not hold."""
 
@@ -235,7 +236,7 @@ class LandmarkMap:
         other_l, into = other_l[keep], into[keep]
         u = _first_occurrence(other_l)  # each merged into one landmark of a only
         other_l, into = other_l[u], into[u]
-        ok = ~self._coobserved(other_l, into)
+        ok = ~_coobserved(self.assoc, self.ids, other_l, into)
         merged = self.ids.union(other_l[ok], into[ok])
         self.merges += merged
         if merged:
@@ -258,32 +259,6 @@ class LandmarkMap:
             self.loop_merges += len(np.unique(ia))
         self.assoc[kf.id] = chosen
         return int(np.count_nonzero(chosen >= 0))
-
-    def _coobserved(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Per pair: whether some keyframe observes both landmarks ``x[k]`` and ``y[k]``."""
-        out = np.zeros(len(x), bool)
-        if not len(x):
-            return out
-        cand = np.unique(np.concatenate([x, y]))
-        kf_l, lm_l = [], []
-        for k, a in self.assoc.items():
-            r = self.root(a[a >= 0])
-            r = r[np.isin(r, cand)]
-            kf_l.append(np.full(len(r), k, np.int64))
-            lm_l.append(r)
-        kfs, lms = np.concatenate(kf_l), np.concatenate(lm_l)
-        n = max(self.keyframes) + 1
-        keys = np.unique(lms * n + kfs)
-        order = np.argsort(lms, kind="stable")
-        lms, kfs = lms[order], kfs[order]
-        lo = np.searchsorted(lms, x, "left")
-        counts = np.searchsorted(lms, x, "right") - lo
-        pair = np.repeat(np.arange(len(x)), counts)
-        idx = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        idx += np.repeat(lo, counts)
-        hit = np.isin(y[pair] * n + kfs[idx], keys)
-        out[pair[hit]] = True
-        return out
 
     def detach(self, kf_ids: np.ndarray, features: np.ndarray) -> None:
         """Remove observations (outliers after bundle adjustment): feature ``features[k]`` of
@@ -367,6 +342,36 @@ class LandmarkMap:
         out.merges = int(state["merges"])
         out.loop_merges = int(state["loop_merges"])
         return out
+
+
+def _coobserved(
+    assoc: Mapping[int, np.ndarray], ids: IdForest, x: np.ndarray, y: np.ndarray
+) -> np.ndarray:
+    """Per pair: whether some keyframe observes both landmarks ``x[k]`` and ``y[k]``
+    (``assoc``: landmark id per feature of each keyframe, by keyframe id)."""
+    out = np.zeros(len(x), bool)
+    if not len(x):
+        return out
+    cand = np.unique(np.concatenate([x, y]))
+    kf_l, lm_l = [], []
+    for k, a in assoc.items():
+        r = ids.root(a[a >= 0])
+        r = r[np.isin(r, cand)]
+        kf_l.append(np.full(len(r), k, np.int64))
+        lm_l.append(r)
+    kfs, lms = np.concatenate(kf_l), np.concatenate(lm_l)
+    n = max(assoc) + 1
+    keys = np.unique(lms * n + kfs)
+    order = np.argsort(lms, kind="stable")
+    lms, kfs = lms[order], kfs[order]
+    lo = np.searchsorted(lms, x, "left")
+    counts = np.searchsorted(lms, x, "right") - lo
+    pair = np.repeat(np.arange(len(x)), counts)
+    idx = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    idx += np.repeat(lo, counts)
+    hit = np.isin(y[pair] * n + kfs[idx], keys)
+    out[pair[hit]] = True
+    return out
 
 
 def _first_occurrence(x: np.ndarray) -> np.ndarray:

@@ -266,11 +266,14 @@ class Tracker:
         return status
 
     def lost_status(
-        self, frame: PreparedFrame | Frame, reason: str, gap: bool = False
+        self, frame: PreparedFrame | Frame, reason: str, gap: bool = False, segment: int = 0
     ) -> TrackingStatus:
-        """The record of a frame lost without tracking (e.g. no usable depth)."""
+        """The record of a frame lost without tracking (e.g. no usable depth, or no keyframe
+        relocalises it); ``segment``: the map segment tracking was in."""
         f = frame.frame if isinstance(frame, PreparedFrame) else frame
-        return TrackingStatus(f.index, "lost", False, f.timestamp, reason=reason, gap=gap)
+        return TrackingStatus(
+            f.index, "lost", False, f.timestamp, reason=reason, gap=gap, segment=segment
+        )
 
     def mark_lost(self) -> None:
         """Forget the previous frame (the next one cannot be aligned to it); the last pose and

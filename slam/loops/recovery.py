@@ -80,7 +80,8 @@ class LossRecovery:
                 f"no usable depth: {100 * fraction:.1f}% of pixels within "
                 f"[{c.depth_min_m}, {c.depth_max_m}] m (min {100 * c.min_depth_fraction:.1f}%)"
             )
-            out = Outcome(None, self.tracker.lost_status(frame, reason, gap=gap))
+            status = self.tracker.lost_status(frame, reason, gap, self.segment)
+            out = Outcome(None, status)
             self._lose(out.status)
             return out
         if self.segment < 0:
@@ -169,7 +170,7 @@ class LossRecovery:
         )
         if found is None:
             reason = "lost; relocalisation found no keyframe that verifies"
-            status = self.tracker.lost_status(frame, reason)
+            status = self.tracker.lost_status(frame, reason, segment=self.segment)
             status.ms = (time.perf_counter() - t0) * 1e3
             return Outcome(None, status)
         match, T, ver = found.keyframe, found.T_world_cam, found.verification

@@ -147,7 +147,9 @@ RUN_TO_RUN = {
     "ate_rmse_odometry_m": 2e-3,
     "rpe_trans_rmse_m": 2e-3,
     "rpe_rot_rmse_deg": 0.06,
-    "drift_percent": 2.0,
+    # drift over 5 frames of 7scenes-1000 (a few cm of path) is the noisiest: 6 identical runs
+    # gave 7.6-13.6% (code of 2c63699) and 7.9-15.0% (after the layout change of issue 16)
+    "drift_percent": 8.0,
 }
 
 
