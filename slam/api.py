@@ -4,7 +4,8 @@ and the resumption of an interrupted run."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -18,12 +19,15 @@ from slam.run_folder import (
     CONFIG_FILE,
     METRICS_FILE,
     RunFolder,
+    discard_unfinished,
+    make_run_dir,
     prepare_run_dir,
     remove_work_dirs,
     save_run,
     write_config,
 )
 from slam.run_folder.checkpoint import STATE_FILE, has_checkpoint
+from slam.run_folder.lock import RunLock
 
 log = logging.getLogger(__name__)
 
@@ -56,29 +60,50 @@ def run_sequence(
             raise ConfigError(f"max_frames must be >= 1 (or None for all), got {max_frames}")
         cfg.dataset.max_frames = max_frames
     cfg.validate()
-    out = prepare_run_dir(out_dir, overwrite)
-    if sequence is None:
-        from slam.demo import demo_sequence_path
+    created = not Path(out_dir).exists()
+    out = make_run_dir(out_dir)  # what it holds is checked once the folder is locked
+    with _claimed(out, created):
+        prepare_run_dir(out, overwrite)
+        if sequence is None:
+            from slam.demo import demo_sequence_path
 
-        sequence = demo_sequence_path()
-    cfg.dataset.path = str(Path(sequence).resolve())
-    seq: Sequence = open_sequence(sequence, cfg.dataset.layout, cfg.dataset.calibration)
-    recorder = _recorder(rerun, seq.name)
-    write_config(out, cfg)
-    result = _recorded(
-        recorder,
-        lambda hook: run(
-            seq,
-            cfg,
-            progress=progress,
-            run_dir=out,
-            checkpoint_every=checkpoint_every,
-            on_frame=hook,
-        ),
-        on_frame,
-        out,
-    )
+            sequence = demo_sequence_path()
+        cfg.dataset.path = str(Path(sequence).resolve())
+        seq: Sequence = open_sequence(sequence, cfg.dataset.layout, cfg.dataset.calibration)
+        recorder = _recorder(rerun, seq.name)
+        write_config(out, cfg)
+        result = _recorded(
+            recorder,
+            lambda hook: run(
+                seq,
+                cfg,
+                progress=progress,
+                run_dir=out,
+                checkpoint_every=checkpoint_every,
+                on_frame=hook,
+            ),
+            on_frame,
+            out,
+        )
     return result, out
+
+
+@contextmanager
+def _claimed(out: Path, created: bool) -> Iterator[None]:
+    """Hold the run folder's lock while the run writes it. A run that fails before its first
+    checkpoint leaves nothing behind (no config.yaml, no spilled submaps, no folder it created),
+    so the corrected run needs no --overwrite; one with a checkpoint stays resumable."""
+    try:
+        with RunLock(out):
+            try:
+                yield
+            except BaseException:
+                if not has_checkpoint(out):
+                    discard_unfinished(out)
+                raise
+    finally:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
 
 
 def _recorder(path: str | Path | None, name: str) -> Any:
@@ -130,6 +155,20 @@ def resume_run(
     ``checkpoint_every``: default the interrupted run's. ``rerun``: record the resumed frames
     and the result into this ``.rrd`` file (``slam view`` records the whole run afterwards)."""
     folder = RunFolder(run_dir)
+    run_dir = folder.path
+    if not run_dir.is_dir():
+        raise RunFolderError(f"{run_dir}: run folder not found")
+    with RunLock(run_dir):
+        return _resume(folder, progress, checkpoint_every, on_frame, rerun)
+
+
+def _resume(
+    folder: RunFolder,
+    progress: ProgressCallback | None,
+    checkpoint_every: int | None,
+    on_frame: FrameCallback | None,
+    rerun: str | Path | None,
+) -> tuple[RunResult, Path]:
     run_dir = folder.path
     if folder.complete:
         raise RunFolderError(f"{run_dir}: the run is complete ({METRICS_FILE}); nothing to resume")

@@ -70,6 +70,9 @@ __all__ = [
     "TRACKING_FILE",
     "TRAJECTORY_FILE",
     "WORK_DIRS",
+    "discard_unfinished",
+    "make_run_dir",
+    "submaps_dir",
     "RunFolder",
     "check_writable",
     "clear_run_dir",
@@ -127,6 +130,16 @@ def prepare_run_dir(out: str | Path, overwrite: bool = False) -> Path:
             )
         if overwrite:
             clear_run_dir(out)
+    return make_run_dir(out)
+
+
+def make_run_dir(out: str | Path) -> Path:
+    """``out`` as a writable folder (created when missing); what it holds is not checked."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise RunFolderError(
+            f"--out {out} is a file, not a folder: give a folder for the run's results"
+        )
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -150,6 +163,15 @@ def require_complete(run_dir: str | Path) -> Path:
             why = "it is not a run folder of `slam run`"
         raise RunFolderError(f"{run_dir}: no {METRICS_FILE}, so no complete run: {why}")
     return run_dir
+
+
+def discard_unfinished(run_dir: Path) -> None:
+    """Remove what a run that stopped before its first checkpoint left (``config.yaml``, spilled
+    submaps): nothing of it can be resumed, and a corrected run must find the folder free."""
+    for name in (CONFIG_FILE,):
+        (run_dir / name).unlink(missing_ok=True)
+    for name in WORK_DIRS:
+        shutil.rmtree(run_dir / name, ignore_errors=True)
 
 
 def submaps_dir(run_dir: str | Path) -> Path:

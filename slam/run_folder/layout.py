@@ -37,6 +37,8 @@ SEGMENT_GLOB = f"{SEGMENT_PREFIX}*{SEGMENT_SUFFIX}"
 #: Working folders of a run in progress (removed once the results are written).
 CHECKPOINT_DIR = "checkpoint"
 SUBMAPS_DIR = "submaps"
+#: Held by the process writing the folder (slam.run_folder.lock); not an output.
+LOCK_FILE = ".lock"
 
 #: Files a run writes (and ``slam report`` / ``slam view`` add); their presence means the
 #: folder holds a run.
