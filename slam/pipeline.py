@@ -130,8 +130,15 @@ def run(
         if checkpoint_every and done % checkpoint_every == 0 and done < len(indices):
             assert run_dir is not None
             t1 = time.perf_counter()
-            write_checkpoint(run_dir, system.state_dict(), done, checkpoint_every)
-            n_checkpoints += 1
+            try:
+                write_checkpoint(run_dir, system.state_dict(), done, checkpoint_every)
+                n_checkpoints += 1
+            except OSError as exc:  # e.g. a full disk: the run goes on, the last one stands
+                log.warning(
+                    "checkpoint at frame %d of %d not written (%s); the run goes on, and "
+                    "--resume would continue from the previous checkpoint",
+                    done, len(indices), exc,
+                )  # fmt: skip
             checkpoint_ms += (time.perf_counter() - t1) * 1e3
     result = system.finish()
     m = result.metrics

@@ -309,7 +309,45 @@ def write_mesh(path: str | Path, mesh: o3d.geometry.TriangleMesh) -> None:
 
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    if not o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False, compressed=False):
+    ok = o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False, compressed=False)
+    # Open3D reports success on a truncated file (a full disk): check the size the header
+    # promises before the file takes the final name
+    want, got = _ply_size(tmp), tmp.stat().st_size if tmp.exists() else 0
+    if not ok or want is None or got != want:
         tmp.unlink(missing_ok=True)
-        raise OSError(f"{path}: Open3D could not write the mesh")
+        raise OSError(
+            f"{path}: the mesh could not be written whole ({got} of {want or '?'} bytes; is the "
+            "disk full?)"
+        )
     os.replace(tmp, path)
+
+
+_PLY_BYTES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
+              "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
+              "float": 4, "float32": 4, "double": 8, "float64": 8}  # fmt: skip
+
+
+def _ply_size(path: Path) -> int | None:
+    """The size in bytes a binary PLY file of triangles must have by its header (None when the
+    header is unreadable)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return None
+    end = head.find(b"end_header\n")
+    if end < 0 or not head.startswith(b"ply"):
+        return None
+    size, counts, per_element = end + len(b"end_header\n"), {}, {}
+    element = None
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        words = line.split()
+        if words[:1] == ["element"] and len(words) == 3:
+            element = words[1]
+            counts[element], per_element[element] = int(words[2]), 0
+        elif words[:1] == ["property"] and element is not None:
+            if words[1] == "list":  # count type, then (triangles) 3 items
+                per_element[element] += _PLY_BYTES[words[2]] + 3 * _PLY_BYTES[words[3]]
+            else:
+                per_element[element] += _PLY_BYTES[words[1]]
+    return size + sum(counts[e] * per_element[e] for e in counts)

@@ -71,21 +71,26 @@ def _tmp(path: Path) -> Path:
 
 
 def _write_bytes(path: Path, data: bytes) -> None:
-    tmp = _tmp(path)
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    _write_via_tmp(path, lambda f: f.write(data))
 
 
 def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    _write_via_tmp(path, lambda f: np.savez(f, allow_pickle=False, **arrays))
+
+
+def _write_via_tmp(path: Path, write: Any) -> None:
+    """``write(file)`` into a temporary name beside ``path``, fsync, rename; on any failure
+    (a full disk: ENOSPC) the temporary file is removed and nothing replaces ``path``."""
     tmp = _tmp(path)
-    with open(tmp, "wb") as f:
-        np.savez(f, allow_pickle=False, **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _json(tree: Any) -> bytes:

@@ -9,6 +9,7 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from slam.errors import RunFolderError
 from slam.run_folder.layout import (
     CONFIG_FILE,
     LOOPS_FILE,
@@ -46,6 +47,17 @@ def save_run(result: RunResult, out_dir: str | Path) -> Path:
     last, metrics.json, which marks the folder as holding a complete run (any old one is removed
     first). Every file is written atomically."""
     out = Path(out_dir)
+    try:
+        _write_all(result, out)
+    except OSError as exc:
+        raise RunFolderError(
+            f"{out}: the run's results could not be written ({exc}); no {METRICS_FILE} was "
+            "written, so the folder does not pass for a complete run: free space and run again"
+        ) from exc
+    return out
+
+
+def _write_all(result: RunResult, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / METRICS_FILE).unlink(missing_ok=True)
     write_tum(out / TRAJECTORY_FILE, result.trajectory)
@@ -69,4 +81,3 @@ def save_run(result: RunResult, out_dir: str | Path) -> Path:
         loops = json.dumps(result.loop_closer.loops_json(), indent=1) + "\n"
         atomic_write_text(out / LOOPS_FILE, loops)
     atomic_write_text(out / METRICS_FILE, json.dumps(result.metrics.as_json(), indent=2) + "\n")
-    return out
