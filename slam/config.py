@@ -62,6 +62,14 @@ class TrackingConfig:
     # all depth up to depth_max_m (far scenes)
     icp_depth_max_m: float = 2.5
     icp_near_fraction: float = 0.3
+    # instead: every ICP level weighs each residual by the depth sensor's axial noise,
+    # sigma(z) = depth_noise_sigma0_m + depth_noise_quadratic * (z - 0.4 m)^2 (Nguyen, Izadi,
+    # Lovell 2012, Kinect v1), on all depth up to depth_max_m (slam.frontend.weighted_icp). Off:
+    # measured worse on tum-fr1-xyz (odometry 0.0132 vs 0.0112 m) and the cabinet (0.047-0.097
+    # vs 0.022-0.026 m), better on 7-Scenes (0.0358 vs 0.0377 m); see docs/benchmarks.md
+    icp_noise_weighting: bool = False
+    depth_noise_sigma0_m: float = 0.0012
+    depth_noise_quadratic: float = 0.0019
     # projective correspondences farther apart are rejected (at the finest level; 3 cm is the
     # inlier distance of the checks too). Against 7 cm: tum-fr1-xyz odometry 0.0157 -> 0.0143 m,
     # cabinet 0.0625 -> 0.0254 m, 7-Scenes 0.0536 -> 0.0532 m, the synthetic loops unchanged
@@ -85,6 +93,13 @@ class TrackingConfig:
     # 1.0 it measured no better on tum-fr1-xyz and worse on the demo and the cabinet, ~2x slower
     photometric_weight: float = 0.0
     photometric_frame_to_frame: bool = False  # ... the frame-to-frame alignment joint too
+    # a step departing from the constant-velocity prediction by more than a hand-held camera
+    # can accelerate in the frame interval (max_acceleration_m_s2 * dt^2: 11 mm at 30 Hz) is
+    # not taken from depth alone: the frame is aligned again with colour joining depth at this
+    # photometric weight (where colour is registered; 0 = off). Depth slides along a wall
+    # filling the view or a corridor; texture does not
+    max_acceleration_m_s2: float = 10.0
+    motion_check_photometric_weight: float = 1.0
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
     # robustness: a frame with less usable depth than this fraction of its pixels is lost
@@ -274,6 +289,10 @@ class SlamConfig:
             (t.depth_max_m > t.depth_min_m, "tracking.depth_max_m", t.depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),
             (t.icp_depth_max_m > t.depth_min_m, "tracking.icp_depth_max_m", t.icp_depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),
             (0 <= t.icp_near_fraction <= 1, "tracking.icp_near_fraction", t.icp_near_fraction, "in [0, 1]"),
+            (t.depth_noise_sigma0_m > 0, "tracking.depth_noise_sigma0_m", t.depth_noise_sigma0_m, "> 0"),
+            (t.max_acceleration_m_s2 > 0, "tracking.max_acceleration_m_s2", t.max_acceleration_m_s2, "> 0"),
+            (t.motion_check_photometric_weight >= 0, "tracking.motion_check_photometric_weight", t.motion_check_photometric_weight, ">= 0"),
+            (t.depth_noise_quadratic >= 0, "tracking.depth_noise_quadratic", t.depth_noise_quadratic, ">= 0"),
             (t.max_correspondence_m > 0, "tracking.max_correspondence_m", t.max_correspondence_m, "> 0"),
             (t.huber_delta_m > 0, "tracking.huber_delta_m", t.huber_delta_m, "> 0"),
             (t.coarse_correspondence_factor >= 1, "tracking.coarse_correspondence_factor", t.coarse_correspondence_factor, ">= 1"),

@@ -34,6 +34,11 @@ class TrackingStatus:
     ransac_matches: int = 0
     overlap: float = 0.0
     f2f_fitness: float = 0.0
+    # how blind the geometry was: the weakest over the strongest standard deviation of the
+    # model ICP's pose (rotations as motion at the scene's depth; large: a direction that
+    # depth alone hardly constrains, see slam.frontend.weighted_icp.constraint)
+    constraint_ratio: float = 0.0
+    photometric: bool = False  # colour constrained the pose (geometry was blind)
     model_rejected: bool = False
     keyframe: bool = False
     ms: float = 0.0

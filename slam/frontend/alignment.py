@@ -35,7 +35,7 @@ class Attempt:
     closures, so each stage can be run (and tested) on its own.
 
     ``prev_depth``: the previous frame's ICP pyramid (or depth), None when there is no previous
-    frame to align to (after a loss); ``prev_rgbd``: its joint-alignment pyramids."""
+    frame to align to (after a loss); ``prev_frame``: the previous frame itself (for its grey pyramids)."""
 
     frame: PreparedFrame
     status: TrackingStatus
@@ -44,8 +44,9 @@ class Attempt:
     large: bool  # the predicted motion is large, or the frame follows a gap
     verify: bool  # the frame follows a gap: its pose needs ORB support
     dt_ratio: float = 1.0  # the frame's interval over the usual one
+    dt_s: float = 1.0 / 30.0  # seconds since the previous frame (a 30 Hz sensor's when unknown)
     prev_depth: np.ndarray | list[np.ndarray] | None = None
-    prev_rgbd: RgbdImage | None = None
+    prev_frame: PreparedFrame | None = None  # the previous frame (its colour, on demand)
     feats: FeatureSet | None = None  # the frame's ORB features, once a stage used them
     ransac: RansacResult | None = None  # the seed's / rescue's RANSAC with the most inliers
     tried: list[np.ndarray] = field(default_factory=list)  # model-ICP starts (T_world_cam)
@@ -53,6 +54,9 @@ class Attempt:
     icp: IcpResult | None = None  # ... its frame-to-model ICP
     overlap: float = 0.0  # ... and its verified overlap with the model ray-cast
     ok: bool = False  # the best estimate passes the checks
+    # colour joins depth in every alignment of this attempt (weight of the photometric term;
+    # 0: depth alone, unless tracking.photometric_weight puts colour everywhere)
+    photometric: float = 0.0
 
     def keep(self, T_world_cam: np.ndarray, icp: IcpResult, overlap: float) -> None:
         self.T_world_cam, self.icp, self.overlap = T_world_cam, icp, overlap
@@ -102,6 +106,15 @@ class Attempt:
         return out
 
 
+def _joint_weight(cfg: TrackingConfig, att: Attempt) -> float | None:
+    """The photometric weight of this attempt's alignments, None for depth alone (or when the
+    frame has no registered colour)."""
+    weight = att.photometric or cfg.photometric_weight
+    if weight <= 0 or att.frame.photometric_image(len(cfg.iterations)) is None:
+        return None
+    return weight
+
+
 def align_to_model(
     cfg: TrackingConfig,
     att: Attempt,
@@ -115,12 +128,13 @@ def align_to_model(
     RANSAC, not merely predicted) is distrusted: the guess is kept."""
     p = att.frame
     w, h = p.size
+    joint = _joint_weight(cfg, att)
     render = model.raycast(
-        p.K_track, w, h, T_world_guess, False, p.rgbd is not None, frustum_depth_m=p.depth_m
+        p.K_track, w, h, T_world_guess, False, joint is not None, frustum_depth_m=p.depth_m
     )
-    if p.rgbd is not None and render.color is not None:
+    if joint is not None and render.color is not None:
         target = RgbdImage(render.depth_m, grey(render.color), p.K_track, len(cfg.iterations))
-        icp = p.joint_to(target, np.eye(4), cfg)
+        icp = p.joint_to(target, np.eye(4), cfg, joint)
     else:
         icp = p.icp_to(render.depth_m, np.eye(4), cfg)
     step = icp.T_target_source
@@ -147,8 +161,12 @@ def align_from(
     ``same_start_*``): the same result again, at the cost of a ray-cast."""
     p = att.frame
     if cfg.frame_to_frame and att.prev_depth is not None:
-        if p.rgbd is not None and cfg.photometric_frame_to_frame and att.prev_rgbd is not None:
-            f2f = p.joint_to(att.prev_rgbd, T_prev_cur, cfg)
+        joint = _joint_weight(cfg, att)
+        if att.photometric == 0 and not cfg.photometric_frame_to_frame:
+            joint = None
+        prev = att.prev_frame.photometric_image(len(cfg.iterations)) if att.prev_frame else None
+        if joint is not None and prev is not None:
+            f2f = p.joint_to(prev, T_prev_cur, cfg, joint)
         else:
             f2f = p.icp_to(att.prev_depth, T_prev_cur, cfg)
         att.status.f2f_fitness = round(float(f2f.fitness), 4)

@@ -21,6 +21,7 @@ from slam.frontend.features import OrbExtractor
 from slam.frontend.icp import IcpResult, projective_icp
 from slam.frontend.photometric import RgbdImage, grey, joint_align
 from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth
+from slam.frontend.weighted_icp import DepthNoise, SourcePoints
 from slam.keyframe import FeatureSet, KeyframeView
 
 
@@ -42,12 +43,18 @@ def icp_depth_range(
     least ``near_fraction`` of the valid pixels, else ``depth_max_m`` (a scene mostly far away
     keeps all its depth). A structured-light sensor's depth noise grows as z^2 and is
     structured far away: on tum-fr1-xyz, ICP on depth up to 2.5 m instead of 4 m has odometry
-    ATE 0.0111 m instead of 0.0143 m."""
+    ATE 0.0111 m instead of 0.0143 m. (With ``tracking.icp_noise_weighting`` all depth is used,
+    weighted by its noise.)"""
     if near_max_m >= depth_max_m:
         return depth_max_m
     valid = np.count_nonzero(depth_m > 0)
     near = np.count_nonzero((depth_m > 0) & (depth_m < near_max_m))
     return near_max_m if valid and near >= near_fraction * valid else depth_max_m
+
+
+def depth_noise(cfg: TrackingConfig) -> DepthNoise:
+    """The depth sensor's noise model of the tracking config."""
+    return DepthNoise(cfg.depth_noise_sigma0_m, cfg.depth_noise_quadratic)
 
 
 @dataclass
@@ -58,7 +65,8 @@ class PreparedFrame:
 
     ``depth_m``: tracking depth (downsampled, bilateral-filtered); ``pyramid``: its ICP pyramid
     (finest first); ``K_track``: intrinsics of ``depth_m``; ``icp_depth_max_m``: the depth range
-    ICP uses; ``rgbd``: depth + grey pyramids for the photometric term (None when it is off or
+    ICP uses; ``points``: with ``icp_noise_weighting``, each pyramid level's valid pixels as
+    points with their normals and depth noise (the weighted ICP's source), else None; ``rgbd``: depth + grey pyramids for the photometric term (None when it is off or
     the frame has no colour); ``orb``: the extractor, None when colour is not used for features;
     ``prep_ms``: time spent building it."""
 
@@ -67,9 +75,11 @@ class PreparedFrame:
     pyramid: list[np.ndarray]
     K_track: np.ndarray
     icp_depth_max_m: float
+    points: list[SourcePoints] | None
     rgbd: RgbdImage | None = None
     orb: OrbExtractor | None = field(default=None, repr=False)
     prep_ms: float = 0.0
+    colour_registered: bool = False  # the photometric term can be built (on demand)
     _features: FeatureSet | None = field(default=None, init=False, repr=False)
     _extracted: bool = field(default=False, init=False, repr=False)
 
@@ -80,22 +90,40 @@ class PreparedFrame:
         orb: OrbExtractor | None,
         photometric: bool,
         depth_m: np.ndarray | None = None,
+        colour_registered: bool = False,
     ) -> PreparedFrame:
         """Derive the frame's tracking inputs (``depth_m``: its tracking depth when already
-        computed). ``photometric``: build the grey pyramids of the joint alignment."""
+        computed). ``photometric``: build the grey pyramids of the joint alignment now;
+        ``colour_registered``: they can be built on demand (:meth:`photometric_image`)."""
         t0 = time.perf_counter()
         depth = tracking_depth(frame.depth_m, cfg) if depth_m is None else depth_m
         levels = len(cfg.iterations)
         pyramid = depth_pyramid(depth, levels)  # built once: every ICP of this frame uses it
         K_track = scale_intrinsics(frame.K, cfg.downsample)
-        icp_max = icp_depth_range(
-            depth, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
-        )
+        points = None
+        if cfg.icp_noise_weighting:
+            icp_max = cfg.depth_max_m
+            noise = depth_noise(cfg)
+            points = [
+                SourcePoints.from_depth(
+                    np.where(d < icp_max, d, np.float32(0.0)),
+                    scale_intrinsics(K_track, 2**level),
+                    noise,
+                )
+                for level, d in enumerate(pyramid)
+            ]
+        else:
+            icp_max = icp_depth_range(
+                depth, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
+            )
         rgbd = None
         if photometric and frame.color is not None:
             rgbd = RgbdImage(pyramid, grey(frame.color, cfg.downsample), K_track, levels)
         prep_ms = (time.perf_counter() - t0) * 1e3
-        return PreparedFrame(frame, depth, pyramid, K_track, icp_max, rgbd, orb, prep_ms)
+        registered = colour_registered and frame.color is not None
+        return PreparedFrame(
+            frame, depth, pyramid, K_track, icp_max, points, rgbd, orb, prep_ms, registered
+        )
 
     @property
     def index(self) -> int:
@@ -131,6 +159,14 @@ class PreparedFrame:
         """Use features already extracted from this frame (instead of extracting them)."""
         self._features, self._extracted = features, True
 
+    def photometric_image(self, levels: int) -> RgbdImage | None:
+        """Depth + grey pyramids for the joint alignment, built on first use (None without
+        registered colour)."""
+        if self.rgbd is None and self.colour_registered and self.frame.color is not None:
+            g = grey(self.frame.color, self.frame.depth_m.shape[0] // self.depth_m.shape[0])
+            self.rgbd = RgbdImage(self.pyramid, g, self.K_track, levels)
+        return self.rgbd
+
     def view(self) -> KeyframeView:
         """What relocalisation matches against the keyframes: features (empty without colour),
         tracking depth and its intrinsics."""
@@ -151,11 +187,19 @@ class PreparedFrame:
             cfg.max_correspondence_m,
             cfg.huber_delta_m,
             cfg.coarse_correspondence_factor,
+            depth_noise(cfg) if self.points is not None else None,
+            self.points,
         )
 
-    def joint_to(self, target: RgbdImage, T_init: np.ndarray, cfg: TrackingConfig) -> IcpResult:
+    def joint_to(
+        self,
+        target: RgbdImage,
+        T_init: np.ndarray,
+        cfg: TrackingConfig,
+        weight: float | None = None,
+    ) -> IcpResult:
         """Joint photometric + geometric alignment of this frame to ``target`` (needs
-        ``rgbd``)."""
+        ``rgbd``); ``weight``: of the photometric term (default ``cfg.photometric_weight``)."""
         assert self.rgbd is not None
         return joint_align(
             self.rgbd,
@@ -165,5 +209,5 @@ class PreparedFrame:
             cfg.max_correspondence_m,
             cfg.huber_delta_m,
             cfg.coarse_correspondence_factor,
-            cfg.photometric_weight,
+            cfg.photometric_weight if weight is None else weight,
         )

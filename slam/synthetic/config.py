@@ -13,9 +13,6 @@ from slam.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-
-log = logging.getLogger(__name__)
-
 # ------------------------------------------------------------------------------------------------
 # constants
 
@@ -24,6 +21,9 @@ ROOM_MIN = np.array([-2.5, -2.0, 0.0])
 ROOM_MAX = np.array([2.5, 2.0, 2.6])
 
 FPS = 30.0
+
+#: Scene kinds: the furnished room of the demo, and the kinds of :mod:`slam.synthetic.kinds`.
+SCENES = ("room", "wall", "corridor", "hall", "desk")
 
 #: Depth sensor working range (metres); outside it the sensor returns no depth (always applied).
 MIN_DEPTH = 0.3
@@ -70,6 +70,12 @@ class SynthConfig:
     then disagrees slightly with the model built from other viewpoints, so odometry drifts
     steadily; ground truth stays exact. Motion speeds are tuned for ``frames`` around 300 (the path
     is parameterised over the sequence, so fewer frames means faster motion).
+
+    ``scene``: one of :data:`SCENES`; kinds other than ``room`` (the furnished room) stress
+    tracking (:mod:`slam.synthetic.kinds`: a bare textured wall, a corridor, a far hall, a desk)
+    and ignore ``loop`` and ``alias``; their paths are defined by rates (seconds, not frames).
+    ``speed``: multiplies the camera's motion (the room: turns over the sequence; the other
+    kinds: every rate).
     """
 
     frames: int = 300
@@ -86,6 +92,8 @@ class SynthConfig:
     alias: bool = False
     drift_bias: float = 0.0
     render_frames: int | None = None  # render only the first N frames of the trajectory
+    scene: str = "room"
+    speed: float = 1.0
 
     @classmethod
     def half_resolution(cls, **overrides) -> SynthConfig:
@@ -112,4 +120,8 @@ class SynthConfig:
         """Raise :class:`ConfigError` / :class:`CalibrationError` on unusable values."""
         if int(self.frames) < 1:
             raise ConfigError(f"SynthConfig.frames must be >= 1, got {self.frames}")
+        if self.scene not in SCENES:
+            raise ConfigError(f"SynthConfig.scene must be one of {SCENES}, got {self.scene!r}")
+        if not (np.isfinite(self.speed) and self.speed > 0):
+            raise ConfigError(f"SynthConfig.speed must be a positive number, got {self.speed}")
         self.calibration()

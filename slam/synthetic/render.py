@@ -28,10 +28,8 @@ from slam.synthetic.config import (
     TEX_RES,
     SynthConfig,
 )
+from slam.synthetic.kinds import SENSOR_MAX_DEPTH_M
 from slam.synthetic.scene import _layout, _texture, make_scene
-
-log = logging.getLogger(__name__)
-
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +41,7 @@ class SynthScene:
     """Everything :func:`render_frame` needs: mesh, raycasting scene, per-object tables, texture."""
 
     def __init__(self, mesh: o3d.geometry.TriangleMesh, cfg: SynthConfig):
-        layout = _layout(int(cfg.seed), bool(cfg.alias))
+        layout = _layout(int(cfg.seed), bool(cfg.alias), cfg.scene)
         n_obj = len(layout.names)
         tri_obj = np.asarray(mesh.triangle_material_ids, dtype=np.int32)
         n_tri = len(mesh.triangles)
@@ -55,6 +53,7 @@ class SynthScene:
         self.mesh = mesh
         self.seed = int(cfg.seed)
         self.alias = bool(cfg.alias)
+        self.kind = cfg.scene
         # extra "object" n_obj for rays that hit nothing
         self.tri_obj = np.append(tri_obj, n_obj).astype(np.int32)
         self.n_tri = n_tri
@@ -63,7 +62,7 @@ class SynthScene:
         self.offsets = np.concatenate(
             [np.stack([t.offsets for t in layout.tex]), np.zeros((1, 6, 2), np.float32)]
         ).reshape(-1, 2)  # (n_obj+1)*6 rows, indexed obj*6 + face
-        self.albedo_lut = _albedo_lut(self.seed, self.alias)
+        self.albedo_lut = _albedo_lut(self.seed, self.alias, self.kind)
         self.texture = _texture(self.seed)
         self.raycaster = o3d.t.geometry.RaycastingScene()
         self.raycaster.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
@@ -79,8 +78,8 @@ _scene_cache: OrderedDict[int, SynthScene] = OrderedDict()
 
 def _as_synth_scene(scene, cfg: SynthConfig) -> SynthScene:
     if isinstance(scene, SynthScene):
-        if scene.seed != int(cfg.seed) or scene.alias != bool(cfg.alias):
-            raise ConfigError("render_frame: scene was built with a different seed/alias")
+        if (scene.seed, scene.alias, scene.kind) != (int(cfg.seed), bool(cfg.alias), cfg.scene):
+            raise ConfigError("render_frame: scene was built with a different seed/alias/scene")
         return scene
     if isinstance(scene, o3d.geometry.TriangleMesh):
         key = id(scene)
@@ -91,6 +90,7 @@ def _as_synth_scene(scene, cfg: SynthConfig) -> SynthScene:
             or cached.mesh is not scene
             or cached.seed != int(cfg.seed)
             or (cached.alias != bool(cfg.alias))
+            or cached.kind != cfg.scene
         ):
             cached = SynthScene(scene, cfg)
             _scene_cache[key] = cached
@@ -121,9 +121,9 @@ def _camera_rays(w: int, h: int, fx: float, fy: float, cx: float, cy: float) -> 
 
 
 @lru_cache(maxsize=8)
-def _albedo_lut(seed: int, alias: bool) -> np.ndarray:
+def _albedo_lut(seed: int, alias: bool, scene: str) -> np.ndarray:
     """((n_obj + 1) * 256, 3) float32: albedo of object k at colour-mix level m is row k*256+m."""
-    layout = _layout(seed, alias)
+    layout = _layout(seed, alias, scene)
     pal = np.concatenate(
         [np.stack([t.palette for t in layout.tex]), np.zeros((1, 2, 3), np.float32)]
     )  # (n_obj+1, 2, 3); the extra object (ray miss) is black
@@ -231,7 +231,8 @@ def render_frame(
         color += noise
     else:
         depth = z.reshape(H, W)
-    depth = np.where((depth >= MIN_DEPTH) & (depth <= MAX_DEPTH), depth, np.float32(0.0))
+    max_depth = np.float32(SENSOR_MAX_DEPTH_M.get(cfg.scene, MAX_DEPTH))
+    depth = np.where((depth >= MIN_DEPTH) & (depth <= max_depth), depth, np.float32(0.0))
     color_u8 = cv2.convertScaleAbs(np.maximum(color, 0.0, out=color))  # rounds and saturates
     return color_u8, depth.astype(np.float32, copy=False)
 

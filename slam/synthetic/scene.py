@@ -4,74 +4,20 @@ ready for ray casting (:func:`build_scene`)."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 from functools import lru_cache
 
 import cv2
 import numpy as np
 import open3d as o3d
-from scipy.spatial.transform import Rotation
 
 from slam.synthetic.config import ROOM_MAX, ROOM_MIN, TEX_RES, TEX_SIZE, SynthConfig
-
-log = logging.getLogger(__name__)
-
+from slam.synthetic.kinds import kind_layout
+from slam.synthetic.shapes import Layout, Rz, box, cylinder, rand_tex, sphere
 
 log = logging.getLogger(__name__)
 
 # ------------------------------------------------------------------------------------------------
 # scene layout
-
-
-@dataclass
-class _TexParams:
-    """Per-object texture parameters: 6 per-face (axis, sign) atlas offsets and a 2-colour palette."""
-
-    offsets: np.ndarray  # (6, 2) texels
-    palette: np.ndarray  # (2, 3) RGB in [0, 1]
-
-
-@dataclass
-class _Layout:
-    vertices: list[np.ndarray] = field(default_factory=list)  # world frame, per object
-    triangles: list[np.ndarray] = field(default_factory=list)
-    names: list[str] = field(default_factory=list)
-    tex: list[_TexParams] = field(default_factory=list)
-    group: list[int] = field(default_factory=list)  # -1: textured in world frame
-    group_T_local_world: list[np.ndarray] = field(default_factory=list)
-
-
-def _rand_tex(rng: np.random.Generator) -> _TexParams:
-    offsets = rng.uniform(0.0, TEX_SIZE, size=(6, 2))
-    # two related but distinct colours, moderately saturated
-    base = rng.uniform(0.35, 1.0, size=3)
-    other = np.clip(base + rng.uniform(-0.45, 0.45, size=3), 0.25, 1.0)
-    return _TexParams(offsets.astype(np.float32), np.stack([base, other]).astype(np.float32))
-
-
-def _box(lo, hi) -> tuple[np.ndarray, np.ndarray]:
-    lo = np.asarray(lo, float)
-    hi = np.asarray(hi, float)
-    m = o3d.geometry.TriangleMesh.create_box(*(hi - lo))
-    return np.asarray(m.vertices) + lo, np.asarray(m.triangles).copy()
-
-
-def _cylinder(center_xy, z0, radius, height, resolution=32) -> tuple[np.ndarray, np.ndarray]:
-    split = max(1, int(np.ceil(height / 0.1)))  # avoid very skinny side triangles
-    m = o3d.geometry.TriangleMesh.create_cylinder(
-        radius, height, resolution=resolution, split=split
-    )
-    v = np.asarray(m.vertices) + np.array([center_xy[0], center_xy[1], z0 + height / 2.0])
-    return v, np.asarray(m.triangles).copy()
-
-
-def _sphere(center, radius, resolution=20) -> tuple[np.ndarray, np.ndarray]:
-    m = o3d.geometry.TriangleMesh.create_sphere(radius, resolution=resolution)
-    return np.asarray(m.vertices) + np.asarray(center, float), np.asarray(m.triangles).copy()
-
-
-def _Rz(deg: float) -> np.ndarray:
-    return Rotation.from_euler("z", deg, degrees=True).as_matrix()
 
 
 def _cluster_parts() -> list[tuple[str, tuple[np.ndarray, np.ndarray]]]:
@@ -80,45 +26,37 @@ def _cluster_parts() -> list[tuple[str, tuple[np.ndarray, np.ndarray]]]:
     Local frame: origin on the floor at the wall, +x pointing into the room, y along the wall.
     """
     return [
-        ("cluster_cabinet", _box([0.005, -0.45, 0.0], [0.48, 0.45, 0.85])),
-        ("cluster_drawer1", _box([0.48, -0.40, 0.48], [0.50, 0.40, 0.78])),
-        ("cluster_drawer2", _box([0.48, -0.40, 0.08], [0.50, 0.40, 0.40])),
-        ("cluster_box", _box([0.08, -0.38, 0.85], [0.36, -0.08, 1.07])),
-        ("cluster_can", _cylinder([0.25, 0.22], 0.85, 0.08, 0.28)),
-        ("cluster_ball", _sphere([0.30, 0.02, 0.93], 0.08)),
-        ("cluster_poster", _box([0.003, -0.40, 1.25], [0.02, 0.40, 1.80])),
+        ("cluster_cabinet", box([0.005, -0.45, 0.0], [0.48, 0.45, 0.85])),
+        ("cluster_drawer1", box([0.48, -0.40, 0.48], [0.50, 0.40, 0.78])),
+        ("cluster_drawer2", box([0.48, -0.40, 0.08], [0.50, 0.40, 0.40])),
+        ("cluster_box", box([0.08, -0.38, 0.85], [0.36, -0.08, 1.07])),
+        ("cluster_can", cylinder([0.25, 0.22], 0.85, 0.08, 0.28)),
+        ("cluster_ball", sphere([0.30, 0.02, 0.93], 0.08)),
+        ("cluster_poster", box([0.003, -0.40, 1.25], [0.02, 0.40, 1.80])),
     ]
 
 
 @lru_cache(maxsize=8)
-def _layout(seed: int, alias: bool) -> _Layout:
+def _room_layout(seed: int, alias: bool) -> Layout:
     """All scene objects (world-frame triangle soups) with their texture parameters."""
     rng = np.random.default_rng([int(seed), 0x5CE7E])
-    L = _Layout()
+    L = Layout()
 
-    def add(
-        name: str, vt: tuple[np.ndarray, np.ndarray], tex: _TexParams | None = None, group: int = -1
-    ) -> None:
-        L.vertices.append(np.asarray(vt[0], float))
-        L.triangles.append(np.asarray(vt[1], np.int64))
-        L.names.append(name)
-        L.tex.append(tex if tex is not None else _rand_tex(rng))
-        L.group.append(group)
+    def add(name: str, vt: tuple[np.ndarray, np.ndarray], tex=None, group: int = -1) -> None:
+        L.add(name, vt, rng, tex, group)
 
-    # room: an inward-facing box (triangle winding flipped so normals point inside)
-    rv, rt = _box(ROOM_MIN, ROOM_MAX)
-    add("room", (rv, rt[:, ::-1]))
+    L.add_room(ROOM_MIN, ROOM_MAX, rng)
 
     # --- wall +x (x = 2.5): cluster A (always present) and a table
     # --- wall -x (x = -2.5): cluster B (alias: identical clone of A; else a sofa)
     cluster = _cluster_parts()
     cluster_rng = np.random.default_rng([int(seed), 0xC1A5])
-    cluster_tex = [_rand_tex(cluster_rng) for _ in cluster]
+    cluster_tex = [rand_tex(cluster_rng) for _ in cluster]
     placements = [(np.array([2.5, 0.85, 0.0]), 180.0)]
     if alias:
         placements.append((np.array([-2.5, -0.55, 0.0]), 0.0))
     for gi, (t, yaw) in enumerate(placements):
-        R = _Rz(yaw)
+        R = Rz(yaw)
         T_world_local = np.eye(4)
         T_world_local[:3, :3] = R
         T_world_local[:3, 3] = t
@@ -126,27 +64,27 @@ def _layout(seed: int, alias: bool) -> _Layout:
         for (name, (v, tri)), tex in zip(cluster, cluster_tex):
             add(f"{name}_{gi}", (v @ R.T + t, tri), tex=tex, group=gi)
     if not alias:
-        add("sofa_seat", _box([-2.495, -1.35, 0.0], [-1.75, 0.25, 0.45]))
-        add("sofa_back", _box([-2.495, -1.35, 0.45], [-2.25, 0.25, 0.9]))
-        add("sofa_arm1", _box([-2.495, -1.55, 0.0], [-1.75, -1.35, 0.62]))
-        add("sofa_arm2", _box([-2.495, 0.25, 0.0], [-1.75, 0.45, 0.62]))
-        add("cushion", _box([-2.2, -0.9, 0.45], [-2.05, -0.5, 0.75]))
+        add("sofa_seat", box([-2.495, -1.35, 0.0], [-1.75, 0.25, 0.45]))
+        add("sofa_back", box([-2.495, -1.35, 0.45], [-2.25, 0.25, 0.9]))
+        add("sofa_arm1", box([-2.495, -1.55, 0.0], [-1.75, -1.35, 0.62]))
+        add("sofa_arm2", box([-2.495, 0.25, 0.0], [-1.75, 0.45, 0.62]))
+        add("cushion", box([-2.2, -0.9, 0.45], [-2.05, -0.5, 0.75]))
 
     # table near wall +x
-    add("table_top", _box([1.75, -1.45, 0.72], [2.45, -0.25, 0.76]))
+    add("table_top", box([1.75, -1.45, 0.72], [2.45, -0.25, 0.76]))
     for i, (x, y) in enumerate([(1.78, -1.42), (2.37, -1.42), (1.78, -0.33), (2.37, -0.33)]):
-        add(f"table_leg{i}", _box([x, y, 0.0], [x + 0.05, y + 0.05, 0.72]))
-    add("table_sphere", _sphere([2.05, -1.15, 0.88], 0.12))
-    add("table_box", _box([1.9, -0.75, 0.76], [2.2, -0.45, 0.95]))
-    add("table_can", _cylinder([2.3, -1.25], 0.76, 0.05, 0.22))
+        add(f"table_leg{i}", box([x, y, 0.0], [x + 0.05, y + 0.05, 0.72]))
+    add("table_sphere", sphere([2.05, -1.15, 0.88], 0.12))
+    add("table_box", box([1.9, -0.75, 0.76], [2.2, -0.45, 0.95]))
+    add("table_can", cylinder([2.3, -1.25], 0.76, 0.05, 0.22))
 
     # wall +y (y = 2): bookshelf, cabinet, picture frame
     sx0, sx1, sy0, sy1 = 0.4, 1.45, 1.6, 1.995
-    add("shelf_side1", _box([sx0, sy0, 0.0], [sx0 + 0.03, sy1, 1.8]))
-    add("shelf_side2", _box([sx1 - 0.03, sy0, 0.0], [sx1, sy1, 1.8]))
-    add("shelf_back", _box([sx0 + 0.03, sy1 - 0.02, 0.0], [sx1 - 0.03, sy1, 1.8]))
+    add("shelf_side1", box([sx0, sy0, 0.0], [sx0 + 0.03, sy1, 1.8]))
+    add("shelf_side2", box([sx1 - 0.03, sy0, 0.0], [sx1, sy1, 1.8]))
+    add("shelf_back", box([sx0 + 0.03, sy1 - 0.02, 0.0], [sx1 - 0.03, sy1, 1.8]))
     for k, z in enumerate([0.0, 0.45, 0.9, 1.35, 1.77]):
-        add(f"shelf_board{k}", _box([sx0 + 0.03, sy0, z], [sx1 - 0.03, sy1 - 0.02, z + 0.03]))
+        add(f"shelf_board{k}", box([sx0 + 0.03, sy0, z], [sx1 - 0.03, sy1 - 0.02, z + 0.03]))
     book_rng = np.random.default_rng([int(seed), 0xB00C])
     for k, z in enumerate([0.03, 0.48, 0.93, 1.38]):
         x = sx0 + 0.05
@@ -157,39 +95,45 @@ def _layout(seed: int, alias: bool) -> _Layout:
             h = float(book_rng.uniform(0.2, 0.38))
             d = float(book_rng.uniform(0.18, 0.3))
             if book_rng.random() < 0.8:
-                add(f"book{k}_{x:.2f}", _box([x, sy1 - 0.02 - d, z], [x + w, sy1 - 0.02, z + h]))
+                add(f"book{k}_{x:.2f}", box([x, sy1 - 0.02 - d, z], [x + w, sy1 - 0.02, z + h]))
             x += w + 0.005
-    add("cabinet", _box([-1.65, 1.5, 0.0], [-0.75, 1.995, 1.1]))
-    add("cabinet_door1", _box([-1.6, 1.485, 0.1], [-1.22, 1.5, 1.0]))
-    add("cabinet_door2", _box([-1.18, 1.485, 0.1], [-0.8, 1.5, 1.0]))
-    add("cabinet_vase", _cylinder([-1.0, 1.75], 1.1, 0.09, 0.3))
-    add("frame", _box([-0.45, 1.97, 1.15], [0.15, 1.997, 1.75]))
-    add("box_stack1", _box([1.8, 1.45, 0.0], [2.45, 1.95, 0.5]))
-    add("box_stack2", _box([1.9, 1.55, 0.5], [2.35, 1.9, 0.85]))
+    add("cabinet", box([-1.65, 1.5, 0.0], [-0.75, 1.995, 1.1]))
+    add("cabinet_door1", box([-1.6, 1.485, 0.1], [-1.22, 1.5, 1.0]))
+    add("cabinet_door2", box([-1.18, 1.485, 0.1], [-0.8, 1.5, 1.0]))
+    add("cabinet_vase", cylinder([-1.0, 1.75], 1.1, 0.09, 0.3))
+    add("frame", box([-0.45, 1.97, 1.15], [0.15, 1.997, 1.75]))
+    add("box_stack1", box([1.8, 1.45, 0.0], [2.45, 1.95, 0.5]))
+    add("box_stack2", box([1.9, 1.55, 0.5], [2.35, 1.9, 0.85]))
 
     # wall -x: plant (pot + foliage sphere)
-    add("plant_pot", _cylinder([-2.15, 1.35], 0.0, 0.17, 0.38))
-    add("plant_ball", _sphere([-2.15, 1.35, 0.62], 0.27))
-    add("plant_poster", _box([-2.497, 0.6, 1.2], [-2.48, 1.5, 1.85]))
+    add("plant_pot", cylinder([-2.15, 1.35], 0.0, 0.17, 0.38))
+    add("plant_ball", sphere([-2.15, 1.35, 0.62], 0.27))
+    add("plant_poster", box([-2.497, 0.6, 1.2], [-2.48, 1.5, 1.85]))
 
     # wall -y (y = -2): desk with monitor, chair, bin, lamp
-    add("desk_top", _box([-0.2, -1.995, 0.72], [1.2, -1.4, 0.76]))
-    add("desk_drawers", _box([0.75, -1.95, 0.0], [1.15, -1.45, 0.72]))
-    add("desk_leg1", _box([-0.18, -1.95, 0.0], [-0.13, -1.45, 0.72]))
-    add("desk_leg2", _box([0.7, -1.95, 0.0], [0.75, -1.45, 0.72]))
-    add("monitor", _box([0.15, -1.9, 0.92], [0.75, -1.85, 1.27]))
-    add("monitor_stand", _cylinder([0.45, -1.86], 0.76, 0.03, 0.17))
-    add("keyboard", _box([0.2, -1.7, 0.76], [0.65, -1.55, 0.785]))
-    add("chair_seat", _box([0.05, -1.35, 0.42], [0.5, -0.9, 0.47]))
-    add("chair_back", _box([0.05, -0.95, 0.47], [0.5, -0.9, 0.95]))
-    add("chair_post", _cylinder([0.275, -1.125], 0.0, 0.03, 0.42))
-    add("bin", _cylinder([-0.7, -1.75], 0.0, 0.15, 0.4))
-    add("lamp_pole", _cylinder([-1.9, -1.6], 0.0, 0.02, 1.55))
-    add("lamp_shade", _cylinder([-1.9, -1.6], 1.55, 0.18, 0.25))
-    add("lamp_base", _cylinder([-1.9, -1.6], 0.0, 0.15, 0.03))
-    add("crate", _box([-1.55, -1.95, 0.0], [-1.05, -1.5, 0.45]))
-    add("wall_panel", _box([-1.4, -1.997, 1.2], [-0.6, -1.98, 1.7]))
+    add("desk_top", box([-0.2, -1.995, 0.72], [1.2, -1.4, 0.76]))
+    add("desk_drawers", box([0.75, -1.95, 0.0], [1.15, -1.45, 0.72]))
+    add("desk_leg1", box([-0.18, -1.95, 0.0], [-0.13, -1.45, 0.72]))
+    add("desk_leg2", box([0.7, -1.95, 0.0], [0.75, -1.45, 0.72]))
+    add("monitor", box([0.15, -1.9, 0.92], [0.75, -1.85, 1.27]))
+    add("monitor_stand", cylinder([0.45, -1.86], 0.76, 0.03, 0.17))
+    add("keyboard", box([0.2, -1.7, 0.76], [0.65, -1.55, 0.785]))
+    add("chair_seat", box([0.05, -1.35, 0.42], [0.5, -0.9, 0.47]))
+    add("chair_back", box([0.05, -0.95, 0.47], [0.5, -0.9, 0.95]))
+    add("chair_post", cylinder([0.275, -1.125], 0.0, 0.03, 0.42))
+    add("bin", cylinder([-0.7, -1.75], 0.0, 0.15, 0.4))
+    add("lamp_pole", cylinder([-1.9, -1.6], 0.0, 0.02, 1.55))
+    add("lamp_shade", cylinder([-1.9, -1.6], 1.55, 0.18, 0.25))
+    add("lamp_base", cylinder([-1.9, -1.6], 0.0, 0.15, 0.03))
+    add("crate", box([-1.55, -1.95, 0.0], [-1.05, -1.5, 0.45]))
+    add("wall_panel", box([-1.4, -1.997, 1.2], [-0.6, -1.98, 1.7]))
     return L
+
+
+def _layout(seed: int, alias: bool, scene: str = "room") -> Layout:
+    """The objects of a scene: the furnished room (``alias``: with a cloned furniture cluster)
+    or another scene kind (:mod:`slam.synthetic.kinds`)."""
+    return _room_layout(seed, alias) if scene == "room" else kind_layout(scene, seed)
 
 
 def make_scene(cfg: SynthConfig) -> o3d.geometry.TriangleMesh:
@@ -197,7 +141,7 @@ def make_scene(cfg: SynthConfig) -> o3d.geometry.TriangleMesh:
 
     ``triangle_material_ids`` holds each triangle's object index (used by :func:`render_frame`).
     """
-    L = _layout(int(cfg.seed), bool(cfg.alias))
+    L = _layout(int(cfg.seed), bool(cfg.alias), cfg.scene)
     verts, tris, ids = [], [], []
     n = 0
     for k, (v, t) in enumerate(zip(L.vertices, L.triangles)):
@@ -221,7 +165,7 @@ def alias_clusters(cfg: SynthConfig) -> list[np.ndarray]:
     ``T_world_cam`` looking at copy 0 sees the same image of the cluster as the pose
     ``clusters[1] @ inv(clusters[0]) @ T_world_cam`` looking at copy 1.
     """
-    L = _layout(int(cfg.seed), bool(cfg.alias))
+    L = _layout(int(cfg.seed), bool(cfg.alias), cfg.scene)
     return [np.linalg.inv(T) for T in L.group_T_local_world]
 
 

@@ -7,33 +7,14 @@ import logging
 import numpy as np
 
 from slam.synthetic.config import FPS, SynthConfig
+from slam.synthetic.kinds import kind_poses
+from slam.synthetic.shapes import look_rotation, poses_from
 from slam.trajectory import Trajectory
-
-log = logging.getLogger(__name__)
-
 
 log = logging.getLogger(__name__)
 
 # ------------------------------------------------------------------------------------------------
 # trajectory
-
-
-def _look_rotation(forward: np.ndarray, roll: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) camera-to-world rotations (OpenCV axes) looking along ``forward``, world z up."""
-    f = forward / np.linalg.norm(forward, axis=1, keepdims=True)
-    up = np.array([0.0, 0.0, 1.0])
-    right = np.cross(f, up)
-    right /= np.linalg.norm(right, axis=1, keepdims=True)
-    down = np.cross(f, right)
-    R = np.stack([right, down, f], axis=2)  # columns: x right, y down, z forward
-    c, s = np.cos(roll), np.sin(roll)
-    Rroll = np.zeros((len(roll), 3, 3))
-    Rroll[:, 0, 0] = c
-    Rroll[:, 0, 1] = -s
-    Rroll[:, 1, 0] = s
-    Rroll[:, 1, 1] = c
-    Rroll[:, 2, 2] = 1.0
-    return R @ Rroll
 
 
 def make_trajectory(cfg: SynthConfig) -> Trajectory:
@@ -47,10 +28,12 @@ def make_trajectory(cfg: SynthConfig) -> Trajectory:
     """
     cfg.validate()
     n = int(cfg.frames)
+    if cfg.scene != "room":
+        return Trajectory(np.arange(n) / FPS, kind_poses(cfg))
     rng = np.random.default_rng([int(cfg.seed), 0x7A7])
     ph = rng.uniform(0, 2 * np.pi, 8)
     amp = rng.uniform(0.7, 1.0, 6)
-    turns = 1.0 if cfg.loop else 0.55
+    turns = (1.0 if cfg.loop else 0.55) * float(cfg.speed)
     s = np.arange(n) / n * turns  # fraction of a full turn
     th0 = rng.uniform(0, 2 * np.pi)  # starting angle on the ellipse
     w = 2 * np.pi * s
@@ -64,8 +47,5 @@ def make_trajectory(cfg: SynthConfig) -> Trajectory:
     forward = np.stack(
         [np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)], axis=1
     )
-    R = _look_rotation(forward, roll)
-    poses = np.tile(np.eye(4), (n, 1, 1))
-    poses[:, :3, :3] = R
-    poses[:, :3, 3] = np.stack([x, y, z], axis=1)
+    poses = poses_from(np.stack([x, y, z], axis=1), look_rotation(forward, roll))
     return Trajectory(np.arange(n) / FPS, poses)

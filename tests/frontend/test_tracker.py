@@ -12,6 +12,7 @@ from slam.errors import TrackingError
 from slam.frontend import frame as frame_module
 from slam.frontend.alignment import align_from
 from slam.frontend.features import OrbExtractor
+from slam.frontend.icp import IcpResult
 from slam.frontend.tracker import Tracker, icp_depth_range, scale_motion
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import Keyframe
@@ -206,6 +207,37 @@ def test_alternatives_recover_from_a_wrong_prediction(world, model):
     dt, dr = _errors(att.T_world_cam, world.poses[10])
     assert att.ok and dt < 0.003 and dr < 0.2
     assert len(att.tried) >= 2 and att.overlap > 0.6
+
+
+def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(world, model):
+    tracker = _tracker_at(world, 9)
+    p = tracker.prepare(world.frame(10))
+    att = tracker.predict(p)  # at rest: the prediction is no motion
+    assert att.dt_s == pytest.approx(1.0 / 30.0)  # from the frames' timestamps
+    # an estimate 2 cm off the prediction, more than 10 m/s^2 allow in 1/30 s (1.1 cm): as if
+    # depth had slid; the check aligns again with colour from the prediction
+    slid = world.poses[9] @ _motion(0.02, 0.0)
+    att.keep(slid, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+    att.ok = True
+    tracker.check_motion(att, model)
+    assert att.status.photometric and att.ok and att.photometric > 0
+    dt, dr = _errors(att.T_world_cam, world.poses[10])
+    assert dt < 0.003 and dr < 0.2
+    # within the bound (a slower camera, or a longer interval), depth alone stands
+    calm = tracker.predict(p)
+    calm.dt_s = 0.1  # 10 m/s^2 * 0.01 s^2 = 10 cm
+    calm.keep(slid, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+    calm.ok = True
+    tracker.check_motion(calm, model)
+    assert not calm.status.photometric and calm.T_world_cam is slid
+    # without registered colour there is nothing to check with
+    blind = Tracker(TrackingConfig(), has_color=True, color_registered=False)
+    blind.reset(world.frame(9), world.poses[9])
+    att = blind.predict(blind.prepare(world.frame(10)))
+    att.keep(slid, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+    att.ok = True
+    blind.check_motion(att, model)
+    assert not att.status.photometric and att.T_world_cam is slid
 
 
 def test_verify_needs_orb_support_after_a_gap(world, model):

@@ -1,0 +1,277 @@
+"""The scene matrix: every shared real sequence and every synthetic scene kind (two speeds,
+several seeds), one table that judges a tracking or mapping change.
+
+    python benchmarks/matrix.py                      # the full matrix, this tree
+    python benchmarks/matrix.py --tree /path/to/old --tag old
+    python benchmarks/matrix.py --compare benchmarks/results/matrix-old.json \\
+                                          benchmarks/results/matrix.json
+    python benchmarks/matrix.py --small              # the CI version (tiny synthetic rows)
+
+Each row runs in a fresh process (default config; ``--tree``: import ``slam`` from another
+source tree, e.g. a worktree of main, so old and new run the very same sequences). A row
+records odometry and final ATE (RMSE, SE(3)-aligned), the per-frame step error of odometry
+(translation error of each frame-to-frame motion against ground truth: median and worst, and
+their ratio), lost frames, loops and fps. Synthetic sequences are generated once into the cache
+folder (``$SLAM_CACHE_DIR``/matrix). Writes ``benchmarks/results/matrix[-TAG].json`` and prints a
+Markdown table.
+
+``--compare OLD NEW`` prints, per row, the change of odometry ATE, final ATE and worst step
+error, flagged when it exceeds the row's run-to-run spread (``--repeats`` > 1 measures it:
+the range over repeats; otherwise 10% + 0.5 mm is assumed) in both runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from common import ROOT, SHARED, machine, write_result
+
+#: Scene kinds, speeds and seeds of the full matrix (``room`` is the demo's furnished room).
+KINDS = ("room", "wall", "corridor", "hall", "desk")
+SPEEDS = (1.0, 2.0)
+SEEDS = (0, 1)
+FRAMES = 240
+#: A change within this of a row's value is noise when the spread was not measured.
+DEFAULT_SPREAD = (0.10, 0.0005)
+
+
+@dataclass
+class Row:
+    name: str
+    path: Path
+    synthetic: bool
+
+
+def synthetic_rows(frames: int, kinds, speeds, seeds, half: bool = False) -> list[Row]:
+    from slam.demo import cache_dir
+    from slam.synthetic import SynthConfig, generate_sequence, is_complete
+
+    rows = []
+    for kind in kinds:
+        for speed in speeds:
+            for seed in seeds:
+                kw = dict(frames=frames, scene=kind, speed=speed, seed=seed, loop=kind == "room")
+                cfg = SynthConfig.half_resolution(**kw) if half else SynthConfig(**kw)
+                name = f"{kind}-x{speed:g}-s{seed}" + ("-half" if half else "")
+                path = cache_dir() / "matrix" / f"{name}-{frames}-v1"
+                if not is_complete(path):
+                    print(f"generating {name} ({frames} frames) into {path}", file=sys.stderr)
+                    generate_sequence(path, cfg)
+                rows.append(Row(name, path, True))
+    return rows
+
+
+def real_rows() -> list[Row]:
+    if not SHARED.is_dir():
+        return []
+    return [
+        Row(p.name, p, False)
+        for p in sorted(SHARED.iterdir())
+        if p.is_dir() and (p / "groundtruth.txt").is_file()
+    ]
+
+
+# runs in a fresh process, importing slam from the tree under test: numpy and slam only
+_CHILD = r"""
+import json, logging, sys, time
+import numpy as np
+import slam
+from slam.trajectory import read_tum
+logging.basicConfig(level=logging.ERROR)
+path = sys.argv[1]
+cfg = slam.load_config(None)
+seq = slam.open_sequence(path, cfg.dataset.layout, cfg.dataset.calibration)
+t0 = time.perf_counter()
+res = slam.run(seq, cfg)
+wall = time.perf_counter() - t0
+m = res.metrics
+gt = read_tum(path + "/groundtruth.txt")
+est = res.odometry
+j = np.searchsorted(gt.timestamps, est.timestamps).clip(1, len(gt.timestamps) - 1)
+j = np.where(np.abs(gt.timestamps[j - 1] - est.timestamps) < np.abs(gt.timestamps[j] - est.timestamps), j - 1, j)
+ok = np.abs(gt.timestamps[j] - est.timestamps) < 0.02
+E, G = est.poses[ok], gt.poses[j[ok]]
+dE = np.linalg.inv(E[:-1]) @ E[1:]
+dG = np.linalg.inv(G[:-1]) @ G[1:]
+err = np.linalg.norm((np.linalg.inv(dG) @ dE)[:, :3, 3], axis=1)
+true_step = np.linalg.norm(dG[:, :3, 3], axis=1)
+worst = int(np.argmax(err)) if len(err) else -1
+out = {k: m.get(k) for k in ("frames", "ate_rmse_odometry_m", "ate_rmse_m", "fps",
+       "fps_tracking_fusion", "tracking_failures", "loops_accepted", "keyframes")}
+out.update(
+    seconds=wall,
+    step_err_median_m=float(np.median(err)) if len(err) else None,
+    step_err_max_m=float(err.max()) if len(err) else None,
+    step_err_worst_frame=int(np.flatnonzero(ok)[worst + 1]) if len(err) else None,
+    true_step_median_m=float(np.median(true_step)) if len(err) else None,
+)
+print(json.dumps(out))
+"""
+
+
+def run_row(row: Row, tree: Path | None) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(tree)} if tree is not None else None
+    proc = subprocess.run(
+        [sys.executable, "-c", _CHILD, str(row.path)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree or ROOT,
+    )
+    if proc.returncode != 0:
+        tail = proc.stderr.strip().splitlines()[-3:]
+        return {"error": " | ".join(tail)}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def summarise(runs: list[dict]) -> dict:
+    """A row's value (median over repeats) and its run-to-run range."""
+    good = [r for r in runs if "error" not in r]
+    if not good:
+        return {"error": runs[0].get("error"), "repeats": len(runs)}
+    out: dict = {"repeats": len(good)}
+    for key in good[0]:
+        vals = [r[key] for r in good if r.get(key) is not None]
+        if vals and isinstance(vals[0], (int, float)):
+            vals.sort()
+            out[key] = vals[len(vals) // 2]
+            if len(vals) > 1:
+                out[f"{key}_range"] = vals[-1] - vals[0]
+    ratio = out.get("step_err_max_m"), out.get("step_err_median_m")
+    if ratio[0] is not None and ratio[1]:
+        out["step_err_ratio"] = ratio[0] / ratio[1]
+    return out
+
+
+def _f(v, scale=1.0, fmt="{:.4f}") -> str:
+    return "-" if v is None else fmt.format(v * scale)
+
+
+def table(rows: dict[str, dict]) -> str:
+    head = (
+        "| row | odometry ATE m | final ATE m | step error median / worst mm (ratio) "
+        "| lost | loops | fps |\n|---|---|---|---|---|---|---|\n"
+    )
+    lines = []
+    for name, r in rows.items():
+        if "error" in r:
+            lines.append(f"| {name} | failed: {r['error']} | | | | | |")
+            continue
+        steps = (
+            f"{_f(r.get('step_err_median_m'), 1e3, '{:.1f}')} / "
+            f"{_f(r.get('step_err_max_m'), 1e3, '{:.1f}')} "
+            f"({_f(r.get('step_err_ratio'), 1, '{:.1f}')}x)"
+        )
+        lines.append(
+            f"| {name} | {_f(r.get('ate_rmse_odometry_m'))} | {_f(r.get('ate_rmse_m'))} | {steps} "
+            f"| {r.get('tracking_failures')} | {r.get('loops_accepted')} "
+            f"| {_f(r.get('fps'), 1, '{:.1f}')} |"
+        )
+    return head + "\n".join(lines) + "\n"
+
+
+def _spread(r: dict, key: str) -> float:
+    rel, floor = DEFAULT_SPREAD
+    measured = r.get(f"{key}_range")
+    return measured if measured is not None else rel * abs(r.get(key) or 0.0) + floor
+
+
+def compare(old: dict, new: dict) -> tuple[str, int]:
+    """Per-row changes of the accuracy columns; a change beyond both runs' spreads is flagged.
+    Returns the text and the number of rows that got worse beyond their spread."""
+    keys = ("ate_rmse_odometry_m", "ate_rmse_m", "step_err_max_m")
+    lines = ["| row | " + " | ".join(keys) + " | fps |", "|---" * (len(keys) + 2) + "|"]
+    worse = 0
+    for name in old["rows"]:
+        a, b = old["rows"][name], new["rows"].get(name)
+        if b is None or "error" in a or "error" in b:
+            lines.append(f"| {name} | (missing or failed) |")
+            continue
+        cells, bad = [], False
+        for k in keys:
+            va, vb = a.get(k), b.get(k)
+            if va is None or vb is None:
+                cells.append("-")
+                continue
+            tol = max(_spread(a, k), _spread(b, k))
+            flag = " **worse**" if vb - va > tol else (" better" if va - vb > tol else "")
+            bad |= vb - va > tol
+            cells.append(f"{va:.4f} -> {vb:.4f}{flag}")
+        worse += bad
+        fa, fb = a.get("fps"), b.get("fps")
+        fps = f"{fa:.1f} -> {fb:.1f}" if fa and fb else "-"
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {fps} |")
+    return "\n".join(lines) + "\n", worse
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tree", type=Path, default=None, help="source tree to import slam from")
+    ap.add_argument("--tag", default="", help="suffix of the result file")
+    ap.add_argument("--repeats", type=int, default=1, help="runs per row (spread when > 1)")
+    ap.add_argument("--frames", type=int, default=FRAMES, help="frames of each synthetic row")
+    ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--seeds", default=",".join(map(str, SEEDS)))
+    ap.add_argument("--speeds", default=",".join(map(str, SPEEDS)))
+    ap.add_argument("--no-real", action="store_true", help="synthetic rows only")
+    ap.add_argument("--only", default="", help="comma-separated substrings: run matching rows")
+    ap.add_argument("--small", action="store_true", help="CI version: 2 tiny synthetic rows")
+    ap.add_argument("--out", type=Path, default=None, help="JSON path (default results/)")
+    ap.add_argument("--compare", nargs=2, type=Path, metavar=("OLD", "NEW"))
+    args = ap.parse_args(argv)
+    if args.compare:
+        old, new = (json.loads(p.read_text()) for p in args.compare)
+        text, worse = compare(old, new)
+        print(text + f"\n{worse} row(s) worse beyond their spread")
+        return 0
+    if args.small:
+        rows = synthetic_rows(40, ("wall", "corridor"), (1.0,), (0,), half=True)
+    else:
+        rows = synthetic_rows(
+            args.frames,
+            args.kinds.split(","),
+            [float(s) for s in args.speeds.split(",")],
+            [int(s) for s in args.seeds.split(",")],
+        )
+        rows = ([] if args.no_real else real_rows()) + rows
+    if args.only:
+        rows = [r for r in rows if any(s in r.name for s in args.only.split(","))]
+    results: dict[str, dict] = {}
+    t0 = time.perf_counter()
+    for row in rows:
+        runs = [run_row(row, args.tree) for _ in range(args.repeats)]
+        results[row.name] = summarise(runs)
+        r = results[row.name]
+        print(
+            f"{row.name}: odometry {_f(r.get('ate_rmse_odometry_m'))} final "
+            f"{_f(r.get('ate_rmse_m'))} worst step {_f(r.get('step_err_max_m'), 1e3, '{:.1f}')} "
+            f"mm ({_f(r.get('step_err_ratio'), 1, '{:.1f}')}x median), "
+            f"{_f(r.get('fps'), 1, '{:.1f}')} fps {r.get('error', '')}",
+            file=sys.stderr,
+        )
+    data = {
+        "tree": str(args.tree or ROOT),
+        "repeats": args.repeats,
+        "seconds": round(time.perf_counter() - t0, 1),
+        "machine": machine(),
+        "rows": results,
+    }
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(data, indent=2) + "\n")
+        out = args.out
+    else:
+        out = write_result("matrix" + (f"-{args.tag}" if args.tag else ""), data)
+    print(table(results) + f"\nwritten: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

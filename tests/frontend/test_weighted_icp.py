@@ -1,0 +1,93 @@
+"""The noise-weighted point-to-plane ICP and the constraint analysis of its normal equations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slam.frontend.pointcloud import normal_map
+from slam.frontend.weighted_icp import (
+    DepthNoise,
+    SourcePoints,
+    constraint,
+    weighted_point_to_plane,
+)
+from slam.frontend.weighted_icp import vertex_map as _vertex_map
+from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
+
+K = np.array([[262.5, 0.0, 159.75], [0.0, 262.5, 119.75], [0.0, 0.0, 1.0]])
+W, H = 320, 240
+
+
+def _render(planes: list[tuple[np.ndarray, float]], T_world_cam: np.ndarray) -> np.ndarray:
+    """Depth (HxW) of the nearest of some planes ``n . x = d`` (world frame) seen from a pose."""
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], -1)
+    R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    best = np.full((H, W), np.inf)
+    for n, d in planes:
+        denom = rays @ (R.T @ n)
+        lam = (d - n @ t) / np.where(np.abs(denom) > 1e-9, denom, np.nan)
+        best = np.where((lam > 0) & (lam < best), lam, best)  # lam is the z-depth (ray z = 1)
+    return np.where(np.isfinite(best), best, 0.0).astype(np.float32)
+
+
+#: the corner of a room: a wall 3 m ahead, one 1 m to the left, the floor 0.8 m below (the
+#: OpenCV camera's y points down); each fills a good part of the view
+CORNER = [
+    (np.array([0.0, 0.0, 1.0]), 3.0),
+    (np.array([1.0, 0.0, 0.0]), -1.0),
+    (np.array([0.0, 1.0, 0.0]), 0.8),
+]
+
+
+def _align(planes, motion: np.ndarray, iterations: int = 10):
+    src_depth = _render(planes, motion)  # the camera moved by ``motion``
+    tgt_depth = _render(planes, np.eye(4))
+    src = SourcePoints.from_depth(src_depth, K, DepthNoise())
+    V = _vertex_map(tgt_depth, K)
+    return weighted_point_to_plane(src, V, normal_map(V), K, np.eye(4), iterations, 0.1)
+
+
+def test_noise_grows_with_the_square_of_depth():
+    noise = DepthNoise()
+    assert noise.sigma(np.float32(0.4)) == pytest.approx(0.0012)
+    s1, s2, s4 = (float(noise.sigma(np.float32(z))) for z in (1.0, 2.0, 4.0))
+    assert s1 == pytest.approx(0.0012 + 0.0019 * 0.36, rel=1e-5)
+    assert s4 / s1 > 12  # a far point weighs (s4 / s1)^2 > 150 times less
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    st.lists(st.floats(-0.02, 0.02), min_size=3, max_size=3),
+    st.lists(st.floats(-0.03, 0.03), min_size=3, max_size=3),
+)
+def test_a_small_motion_is_recovered_exactly_in_a_corner(rot, trans):
+    motion = exp_se3(np.array(rot + trans))
+    res = _align(CORNER, motion)
+    assert res is not None and res.fitness > 0.7
+    err = inv_T(motion) @ res.T_target_source
+    assert translation_norm(err) < 1e-3 and rotation_angle_deg(err) < 0.05
+    assert res.rmse_m < 1e-3
+
+
+def test_a_single_wall_leaves_three_directions_blind_and_a_corner_none():
+    wall = _align(CORNER[:1], np.eye(4), 2)
+    corner = _align(CORNER, np.eye(4), 2)
+    assert wall is not None and corner is not None
+    c_wall = constraint(wall.H, wall.depth_m)
+    c_corner = constraint(corner.H, corner.depth_m)
+    # a plane constrains 3 of 6 directions: the weakest is orders of magnitude weaker
+    assert c_wall.ratio > 1e3
+    assert c_corner.ratio < 30
+    assert c_wall.weakest_std_m > 100 * c_corner.weakest_std_m
+    vals = np.linalg.eigvalsh(wall.H)
+    assert np.sum(vals < 1e-6 * vals[-1]) == 3
+
+
+def test_too_few_correspondences_give_none():
+    src = SourcePoints.from_depth(np.zeros((H, W), np.float32), K, DepthNoise())
+    V = _vertex_map(_render(CORNER, np.eye(4)), K)
+    assert weighted_point_to_plane(src, V, normal_map(V), K, np.eye(4), 2, 0.05) is None
