@@ -402,11 +402,11 @@ class Tracker:
         When the estimate departs from the constant-velocity prediction by more than a hand-
         held camera can accelerate over the interval (``max_acceleration_m_s2 * dt^2``), depth
         may be sliding where its geometry is blind (a wall filling the view, a corridor): the
-        frame is aligned to the model again with colour joining depth (where colour is
-        registered), from the prediction, and that estimate is kept when it passes the checks.
-        (Keeping it only where it disagrees with depth by more than the bound kept
-        ``tum-fr1-xyz`` exactly as before but let slow slides through on the fast wall and
-        corridor rows of the scene matrix: 2.8 m instead of 0.045 m, see docs/benchmarks.md.)"""
+        frame is aligned again, frame to frame and then to the model, with colour joining depth
+        (where colour is registered), from the prediction, and that estimate is kept when it
+        passes the checks. (Aligning to the model alone, or keeping the colour estimate only
+        where it disagrees with depth by more than the bound, let slides through on the fast
+        wall and corridor rows of the scene matrix: see docs/benchmarks.md.)"""
         cfg = self.cfg
         if not (att.ok and cfg.motion_check_photometric_weight > 0 and att.photometric == 0):
             return
@@ -418,7 +418,10 @@ class Tracker:
         if att.frame.photometric_image(len(cfg.iterations)) is None:
             return
         att.photometric = cfg.motion_check_photometric_weight
-        T2, icp2, score2 = align_to_model(cfg, att, model, predicted, trusted=False)
+        att.tried = []
+        estimate = align_from(cfg, att, model, att.velocity, False)
+        assert estimate is not None  # nothing was tried since the list was emptied
+        T2, icp2, score2 = estimate
         if score2 >= cfg.min_overlap and icp2.fitness >= cfg.min_fitness:
             att.keep(T2, icp2, score2)
             att.status.photometric = True
