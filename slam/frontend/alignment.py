@@ -161,10 +161,12 @@ def align_from(
     ``same_start_*``): the same result again, at the cost of a ray-cast."""
     p = att.frame
     if cfg.frame_to_frame and att.prev_depth is not None:
-        joint = _joint_weight(cfg, att)
-        if att.photometric == 0 and not cfg.photometric_frame_to_frame:
-            joint = None
-        prev = att.prev_frame.photometric_image(len(cfg.iterations)) if att.prev_frame else None
+        joint = None
+        if att.photometric > 0 or cfg.photometric_frame_to_frame:
+            joint = _joint_weight(cfg, att)
+        prev = None  # the previous frame's grey pyramids, built only when colour joins depth
+        if joint is not None and att.prev_frame is not None:
+            prev = att.prev_frame.photometric_image(len(cfg.iterations))
         if joint is not None and prev is not None:
             f2f = p.joint_to(prev, T_prev_cur, cfg, joint)
         else:

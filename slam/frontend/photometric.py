@@ -28,6 +28,7 @@ import numpy as np
 from slam.camera import scale_intrinsics
 from slam.frontend.icp import IcpResult
 from slam.frontend.pointcloud import depth_pyramid, normal_map
+from slam.frontend.weighted_icp import vertex_map
 from slam.geometry import exp_se3
 
 _MAD = 1.4826
@@ -87,11 +88,8 @@ def _source_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray
 
 def _target_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray) -> _TargetLevel:
     h, w = depth.shape
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    xs = ((np.arange(w) - cx) / fx).astype(np.float32)
-    ys = ((np.arange(h) - cy) / fy).astype(np.float32)
     z = depth.astype(np.float32)
-    vertex = np.stack([z * xs[None, :], z * ys[:, None], z], axis=-1)
+    vertex = vertex_map(z, K)
     normal = normal_map(vertex)
     photo = None
     if intensity is not None:
