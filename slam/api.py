@@ -12,7 +12,7 @@ from typing import Any
 from slam.config import SlamConfig, load_config
 from slam.data.base import Sequence
 from slam.data.loader import open_sequence
-from slam.errors import ConfigError, RunFolderError
+from slam.errors import ConfigError, DatasetError, RunFolderError
 from slam.pipeline import FrameCallback, ProgressCallback, RunResult, run
 from slam.run_folder import (
     CHECKPOINT_DIR,
@@ -47,11 +47,13 @@ def run_sequence(
     """Open a sequence folder (``None``: the built-in synthetic demo), run SLAM, save the run
     folder. Config: ``config`` if given, else defaults overridden by the YAML at ``config_path``.
     ``rerun``: also record the run for the rerun viewer into this ``.rrd`` file
-    (:class:`slam.tools.viewer.RerunRecorder`; needs ``rgbd-slam[viz]``).
+    (:class:`slam.tools.viewer.RerunRecorder`; needs the ``viz`` extra).
 
     Before the first frame: the config and the sequence are checked, and ``out_dir`` must be
     writable and must not hold another run unless ``overwrite`` (which deletes its outputs).
-    ``config.yaml`` is written at once, ``metrics.json`` last; ``checkpoint_every`` N frames the
+    ``config.yaml`` is written at once, with the calibration the sequence was read with (all of
+    its fields in ``dataset.calibration``, so the file reproduces the run on a renamed copy of
+    the folder), ``metrics.json`` last; ``checkpoint_every`` N frames the
     state goes to ``out_dir/checkpoint/`` so :func:`resume_run` can continue after a kill.
     """
     cfg = config if config is not None else load_config(config_path)
@@ -70,6 +72,10 @@ def run_sequence(
             sequence = demo_sequence_path()
         cfg.dataset.path = str(Path(sequence).resolve())
         seq: Sequence = open_sequence(sequence, cfg.dataset.layout, cfg.dataset.calibration)
+        _warn_overridden_calibration(seq, cfg)
+        # the calibration the run uses, whatever chose it (calibration.yaml, TUM defaults by
+        # folder name, overrides): config.yaml then reproduces it on a renamed copy
+        cfg.dataset.calibration = dict(seq.calibration.to_dict())
         recorder = _recorder(rerun, seq.name)
         write_config(out, cfg)
         result = _recorded(
@@ -86,6 +92,28 @@ def run_sequence(
             out,
         )
     return result, out
+
+
+def _warn_overridden_calibration(seq: Sequence, cfg: SlamConfig) -> None:
+    """Warn when the config's ``dataset.calibration`` changes the calibration the sequence
+    folder gives itself (``calibration.yaml``, TUM defaults by folder name): e.g. a run's saved
+    ``config.yaml`` reused on another sequence brings that run's intrinsics along."""
+    if not any(v is not None for v in cfg.dataset.calibration.values()):
+        return
+    try:
+        own = open_sequence(seq.path, cfg.dataset.layout, None).calibration
+    except DatasetError:  # no calibration of its own: the config's is the one
+        return
+    ours, theirs = seq.calibration.to_dict(), own.to_dict()
+    changed = [
+        f"{k} {ours[k]:g} (the folder's: {theirs[k]:g})" for k in ours if ours[k] != theirs[k]
+    ]
+    if changed:
+        log.warning(
+            "%s: the config's dataset.calibration replaces the folder's own calibration: %s; "
+            "remove dataset.calibration from the config to use the folder's",
+            seq.path, ", ".join(changed),
+        )  # fmt: skip
 
 
 @contextmanager

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import json
 import logging
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -13,6 +14,7 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 from rich.logging import RichHandler
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from slam.cli_eval import echo_result, echo_run
@@ -38,8 +40,25 @@ app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     help="Offline RGB-D SLAM: KinectFusion tracking, TSDF mapping, trajectory evaluation.",
+    # help as plain text: no rich markup (it swallowed `[viz]`, `[runs/bench/SUITE_NAME]`),
+    # flags and counts without a value placeholder (`--overwrite`, not `--overwrite <bool>`)
+    rich_markup_mode=None,
 )
-console = Console(stderr=True)
+
+#: the console's width when it writes to a pipe or a file, where nothing is wrapped (rich's
+#: default there, 80 columns, broke paths, messages and the `rerun ...` command mid-line)
+_PIPE_WIDTH = 100_000
+
+
+def _make_console() -> Console:
+    """stderr: rich's layout on a terminal; no wrapping to a pipe or a file."""
+    con = Console(stderr=True)
+    if con.is_terminal:
+        return con
+    return Console(stderr=True, soft_wrap=True, width=_PIPE_WIDTH)
+
+
+console = _make_console()  # made again for each command (the stream may differ)
 
 
 Verbose = Annotated[
@@ -48,6 +67,7 @@ Verbose = Annotated[
         "--verbose",
         "-v",
         count=True,
+        show_default=False,
         help="Log every event (lost frames, loops, relocalisations); -vv: debug detail too.",
     ),
 ]
@@ -63,16 +83,43 @@ def _setup_logging(verbose: int = 0, quiet: bool = False) -> None:
         level = logging.ERROR
     else:
         level = {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
-    logging.basicConfig(
-        level=level,
-        format="%(message)s",
-        handlers=[RichHandler(console=console, show_path=False, show_time=False)],
-        force=True,
-    )
+    handler: logging.Handler
+    if console.is_terminal:  # above the progress bar, levels in colour
+        handler = RichHandler(console=console, show_path=False, show_time=False)
+        fmt = "%(message)s"
+    else:  # a pipe or a file: one plain line per record, never wrapped
+        handler = logging.StreamHandler(sys.stderr)
+        fmt = "%(levelname)-8s %(message)s"
+    logging.basicConfig(level=level, format=fmt, handlers=[handler], force=True)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from slam.run_folder.provenance import software_line
+
+        typer.echo(software_line())
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            callback=_version,
+            is_eager=True,
+            help="Print the version (and the git commit when run from a checkout) and exit.",
+        ),
+    ] = False,
+) -> None:
+    # runs before every command: the console for the stream this invocation writes to
+    global console
+    console = _make_console()
 
 
 def _fail(exc: Exception) -> None:
-    console.print(f"[bold red]error:[/] {exc}")
+    console.print(f"[bold red]error:[/] {escape(str(exc))}")
     raise typer.Exit(code=2)
 
 
@@ -113,7 +160,7 @@ def _generate_demo(quiet: bool) -> Path:
     if is_generated() or quiet:
         return demo_sequence_path()
     console.print(
-        f"first run: generating the synthetic demo sequence into {builtin_path()} "
+        f"first run: generating the synthetic demo sequence into {escape(str(builtin_path()))} "
         "(once, about a minute)"
     )
     with _progress() as bar:
@@ -159,7 +206,7 @@ class _RunProgress:
             self.bar.stop()
 
 
-@command()
+@command(short_help="Track a sequence into a run folder: trajectory, mesh, metrics.")
 def run(
     sequence: Annotated[
         Optional[Path],
@@ -199,8 +246,9 @@ def run(
         Optional[Path],
         typer.Option(
             "--rerun",
-            help="Also record the run for the rerun 3D viewer into this .rrd file (needs "
-            "`pip install 'rgbd-slam[viz]'`; open it with `rerun FILE.rrd`).",
+            help="Also record the run for the rerun 3D viewer into this .rrd file (needs the "
+            "viz extra, installed from the checkout with `pip install -e '.[viz]'`; open it "
+            "with `rerun FILE.rrd`).",
         ),
     ] = None,
     verbose: Verbose = 0,
@@ -247,13 +295,13 @@ def run(
     if quiet:
         return
     files = ", ".join(sorted(p.name for p in run_dir.iterdir() if p.is_file()))
-    console.print(f"[green]wrote[/] {run_dir}: {files}")
+    console.print(f"[green]wrote[/] {escape(f'{run_dir}: {files}')}")
     if rerun is not None:
-        console.print(f"[green]wrote[/] {rerun} (open it with `rerun {rerun}`)")
+        console.print(f"[green]wrote[/] {escape(f'{rerun} (open it with `rerun {rerun}`)')}")
     typer.echo(summary_line(result.metrics))
 
 
-@command()
+@command(short_help="Write (and --open) the rerun 3D recording of a finished run.")
 def view(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `slam run`.")],
     out: Annotated[
@@ -287,7 +335,7 @@ def view(
         typer.echo(f"open it with: rerun {path}")
 
 
-@command()
+@command(short_help="Render a synthetic RGB-D sequence with exact ground truth.")
 def synth(
     out: Annotated[Path, typer.Argument(help="Folder to write the TUM-layout sequence into.")],
     frames: Annotated[int, typer.Option("--frames", help="Number of frames.")] = 300,
@@ -325,7 +373,7 @@ def synth(
     typer.echo(f"wrote {frames} frames to {path}")
 
 
-@command("eval")
+@command("eval", short_help="ATE, RPE and drift of a run folder or of a trajectory file.")
 def eval_cmd(
     gt: Annotated[
         Path,
@@ -442,7 +490,7 @@ def _eval_run_folder(
         echo_run(ev)
 
 
-@command("report")
+@command("report", short_help=f"Write a run's {REPORT_FILE} with plots: top view, error, timing.")
 def report_cmd(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `slam run`.")],
     out: Annotated[
@@ -470,7 +518,7 @@ def report_cmd(
         typer.echo(f"no ground truth: {rep.ground_truth_error}")
 
 
-@command("bench")
+@command("bench", short_help="Run a suite of sequences x configurations; write one table.")
 def bench_cmd(
     suite: Annotated[Path, typer.Argument(help="Suite YAML: sequences x configs.")],
     out: Annotated[
@@ -502,10 +550,12 @@ def bench_cmd(
     out_dir = out if out is not None else Path("runs") / "bench" / s.name
 
     def progress(row: dict, done: int, total: int) -> None:
-        state = "[green]ok[/]" if row["status"] == "ok" else f"[red]failed[/] {row['error']}"
+        failed = f"[red]failed[/] {escape(str(row['error']))}"
+        state = "[green]ok[/]" if row["status"] == "ok" else failed
         ate = row.get("ate_rmse_m")
         ate_txt = f" ATE {ate:.4f} m" if isinstance(ate, float) else ""
-        console.print(f"[{done}/{total}] {row['sequence']} / {row['config']}: {state}{ate_txt}")
+        what = escape(f"[{done}/{total}] {row['sequence']} / {row['config']}: ")
+        console.print(f"{what}{state}{ate_txt}")
 
     res = run_suite(s, out_dir, jobs=jobs, ray_address=ray, progress=progress)
     typer.echo(format_markdown(res.rows))

@@ -126,6 +126,9 @@ _OPTIONAL = frozenset(
         "matched_poses",
         "drift_percent",
         "evaluation_error",
+        "slam_version",
+        "git_commit",
+        "git_dirty",
     }
 )
 
@@ -172,6 +175,10 @@ class RunMetrics:
     checkpoint_ms: float = 0.0
     resumed_at_frame: int | None = None
     peak_rss_mb: float | None = None
+    # set when the run folder is written (slam.run_folder.save_run): the software that ran
+    slam_version: str | None = None
+    git_commit: str | None = None  # null when not run from a git checkout
+    git_dirty: bool | None = None  # the checkout had uncommitted changes to tracked files
     # with ground truth (slam.pipeline.evaluate_against_ground_truth)
     ate_rmse_m: float | None = None
     ate_rmse_odometry_m: float | None = None

@@ -21,6 +21,7 @@ from slam.run_folder.layout import (
     TRAJECTORY_FILE,
     segment_file,
 )
+from slam.run_folder.provenance import software, software_line
 from slam.run_folder.tracking_csv import format_rows
 from slam.trajectory import atomic_write_text, write_tum
 
@@ -35,9 +36,15 @@ log = logging.getLogger(__name__)
 
 def write_config(run_dir: str | Path, config: SlamConfig) -> Path:
     """Write the run's ``config.yaml`` (the full configuration; ``slam run --config`` reads it
-    back); returns its path."""
+    back), headed by a comment naming the software that ran it (version, git commit); returns
+    its path."""
     path = Path(run_dir) / CONFIG_FILE
-    atomic_write_text(path, config.to_yaml())
+    header = (
+        f"# written by {software_line()}\n"
+        f"# the full configuration of this run: `slam run SEQUENCE --config {CONFIG_FILE}` runs "
+        "it again\n"
+    )
+    atomic_write_text(path, header + config.to_yaml())
     return path
 
 
@@ -45,7 +52,8 @@ def save_run(result: RunResult, out_dir: str | Path) -> Path:
     """Write the run folder: trajectory.txt, odometry.txt, mesh.ply, config.yaml, tracking.csv,
     pose_graph.g2o, loops.json, segment_N.txt (map segments never joined to the main one) and,
     last, metrics.json, which marks the folder as holding a complete run (any old one is removed
-    first). Every file is written atomically."""
+    first), with the version and git commit of the software (``result.metrics`` gets them too).
+    Every file is written atomically."""
     out = Path(out_dir)
     try:
         _write_all(result, out)
@@ -80,4 +88,5 @@ def _write_all(result: RunResult, out: Path) -> None:
         result.loop_closer.graph.write_g2o(out / POSE_GRAPH_FILE)
         loops = json.dumps(result.loop_closer.loops_json(), indent=1) + "\n"
         atomic_write_text(out / LOOPS_FILE, loops)
+    result.metrics.update(software())
     atomic_write_text(out / METRICS_FILE, json.dumps(result.metrics.as_json(), indent=2) + "\n")

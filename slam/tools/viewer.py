@@ -1,4 +1,5 @@
-"""3D recordings of runs for the rerun viewer (``pip install 'rgbd-slam[viz]'``, rerun-sdk).
+"""3D recordings of runs for the rerun viewer (rerun-sdk: the ``viz`` extra, installed from the
+checkout with ``pip install -e '.[viz]'``, see :func:`viz_install_hint`).
 
 :class:`RerunRecorder` records a run while it happens (``slam run --rerun FILE.rrd``; its
 :meth:`~RerunRecorder.on_frame` is the ``on_frame`` hook of :func:`slam.run`), and
@@ -30,6 +31,7 @@ import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -38,6 +40,7 @@ import numpy as np
 from slam.errors import SlamError
 from slam.records import TrackingStatus
 from slam.run_folder import CONFIG_FILE, RECORDING_FILE, TRACKING_FILE, RunFolder
+from slam.run_folder.provenance import checkout_root
 from slam.run_folder.tracking_csv import read_tracking_csv as read_tracking_statuses
 from slam.trajectory import Trajectory
 
@@ -67,13 +70,24 @@ _KEYFRAME_RGB = (52, 168, 83)
 _LOOP_RGB = (220, 40, 40, 110)
 
 
+def viz_install_hint() -> str:
+    """How to install the ``viz`` extra (rerun-sdk) into the environment running this: the
+    package is not on PyPI, so from its checkout (``pip install -e '.[viz]'`` there)."""
+    root = checkout_root()
+    if root is None:
+        return "pip install 'rerun-sdk>=0.41' (the one package of the extra rgbd-slam[viz])"
+    return (
+        f"pip install -e '{root}[viz]' (the extra rgbd-slam[viz] from this checkout; it is not "
+        "on PyPI), or pip install 'rerun-sdk>=0.41'"
+    )
+
+
 def _rerun() -> Any:
     try:
         import rerun as rr
     except ImportError as exc:
         raise SlamError(
-            "the 3D recording needs rerun-sdk, which is not installed: "
-            "pip install 'rgbd-slam[viz]' (or pip install rerun-sdk)"
+            f"the 3D recording needs rerun-sdk, which is not installed: {viz_install_hint()}"
         ) from exc
     return rr
 
@@ -430,12 +444,33 @@ def _open_run_sequence(run: RunFolder) -> Any:
         return None
 
 
+def no_display_reason(environ: Mapping[str, str] | None = None) -> str | None:
+    """Why no viewer window can open here, or ``None``: on Linux and the BSDs (X11, Wayland)
+    neither ``$DISPLAY`` nor ``$WAYLAND_DISPLAY`` is set (macOS and Windows always have one)."""
+    env = os.environ if environ is None else environ
+    if sys.platform in ("darwin", "win32", "cygwin"):
+        return None
+    if env.get("DISPLAY") or env.get("WAYLAND_DISPLAY"):
+        return None
+    return "no display ($DISPLAY and $WAYLAND_DISPLAY are not set)"
+
+
 def open_in_viewer(path: str | Path) -> subprocess.Popen:
-    """Start the rerun viewer on a recording (needs a display); returns the process."""
+    """Start the rerun viewer on a recording; returns the process. A :class:`SlamError` before
+    anything starts when there is no display (:func:`no_display_reason`) or no viewer; the
+    recording is left in place either way."""
+    path = Path(path)
+    why = no_display_reason()
+    if why is not None:
+        raise SlamError(
+            f"cannot open the viewer: {why}; the recording is kept in {path}: copy it to a "
+            f"machine with a display and open it with `rerun {path.name}` (rerun-sdk of the "
+            "version that wrote it), or in the web viewer https://app.rerun.io"
+        )
     exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
     if not Path(exe).is_file() and shutil.which(exe) is None:
         raise SlamError(
-            "the rerun viewer is not installed: pip install 'rgbd-slam[viz]'; or open "
-            f"{path} with any rerun viewer, e.g. https://app.rerun.io"
+            f"the rerun viewer is not installed: {viz_install_hint()}; or open {path} with any "
+            "rerun viewer, e.g. https://app.rerun.io"
         )
     return subprocess.Popen([exe, str(path)], start_new_session=True)
