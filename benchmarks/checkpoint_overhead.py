@@ -5,6 +5,7 @@ run (`checkpoint_ms` over `seconds` in metrics.json), which does not have that n
 
     python benchmarks/checkpoint_overhead.py demo --every 100 --repeats 3
     python benchmarks/checkpoint_overhead.py tum-fr1-xyz --every 100 --repeats 2
+    python benchmarks/checkpoint_overhead.py tum-fr1-xyz --every auto --repeats 3   # the default
 
 Writes benchmarks/results/checkpoint-overhead-<sequence>.json. Nothing else should run meanwhile.
 """
@@ -24,10 +25,10 @@ from common import machine, sequence_path, write_result
 KEYS = ("seconds", "fps", "checkpoints", "checkpoint_ms", "ate_rmse_m", "frames")
 
 
-def _run(path: Path, out: Path, every: int) -> dict:
+def _run(path: Path, out: Path, every: int | None) -> dict:
     subprocess.run(
         [sys.executable, "-m", "slam.cli", "run", str(path), "--out", str(out), "--overwrite"]
-        + ["--checkpoint-every", str(every)],
+        + ([] if every is None else ["--checkpoint-every", str(every)]),
         check=True,
         capture_output=True,
         text=True,
@@ -39,7 +40,12 @@ def _run(path: Path, out: Path, every: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sequence", help="demo, demo-drift, or a folder under ../shared/datasets")
-    parser.add_argument("--every", type=int, default=100, help="checkpoint interval (frames)")
+    parser.add_argument(
+        "--every",
+        type=lambda v: None if v == "auto" else int(v),
+        default=100,
+        help="checkpoint interval (frames), or auto (the default of `slam run`)",
+    )
     parser.add_argument("--repeats", type=int, default=3, help="pairs of runs")
     args = parser.parse_args()
     path = sequence_path(args.sequence)
@@ -62,15 +68,17 @@ def main() -> None:
             pairs.append(pair)
     data = {
         "sequence": args.sequence,
-        "every": args.every,
+        "every": "auto" if args.every is None else args.every,
         "pairs": pairs,
         "median_added": statistics.median(p["ratio"] for p in pairs) - 1.0,
         "median_in_run_fraction": statistics.median(p["in_run_fraction"] for p in pairs),
         "machine": machine(),
     }
-    out = write_result(f"checkpoint-overhead-{args.sequence}", data)
+    auto = args.every is None
+    out = write_result(f"checkpoint-overhead-{args.sequence}" + ("-auto" if auto else ""), data)
+    every = "automatic" if auto else f"every {args.every} frames"
     print(
-        f"{out}: checkpoints every {args.every} frames take {data['median_in_run_fraction']:.1%} "
+        f"{out}: checkpoints {every} take {data['median_in_run_fraction']:.1%} "
         f"of the run (median); whole runs {data['median_added']:+.1%} (median of pair ratios)"
     )
 

@@ -39,7 +39,7 @@ def run_sequence(
     config: SlamConfig | None = None,
     max_frames: int | None = None,
     progress: ProgressCallback | None = None,
-    checkpoint_every: int = 0,
+    checkpoint_every: int | None = None,
     overwrite: bool = False,
     on_frame: FrameCallback | None = None,
     rerun: str | Path | None = None,
@@ -53,8 +53,9 @@ def run_sequence(
     writable and must not hold another run unless ``overwrite`` (which deletes its outputs).
     ``config.yaml`` is written at once, with the calibration the sequence was read with (all of
     its fields in ``dataset.calibration``, so the file reproduces the run on a renamed copy of
-    the folder), ``metrics.json`` last; ``checkpoint_every`` N frames the
-    state goes to ``out_dir/checkpoint/`` so :func:`resume_run` can continue after a kill.
+    the folder), ``metrics.json`` last; the state goes to ``out_dir/checkpoint/``
+    every ``checkpoint_every`` frames (None: automatically, at most 2% of the run time; 0:
+    never; always on SIGINT/SIGTERM) so :func:`resume_run` can continue after a kill.
     """
     cfg = config if config is not None else load_config(config_path)
     if max_frames is not None:
@@ -203,7 +204,7 @@ def _resume(
     if not has_checkpoint(run_dir):
         raise RunFolderError(
             f"{run_dir}: no checkpoint to resume from ({CHECKPOINT_DIR}/{STATE_FILE}); the run "
-            "was stopped before its first checkpoint or ran without --checkpoint-every: start "
+            "was stopped before its first checkpoint or ran with --checkpoint-every 0: start "
             "it again with --overwrite"
         )
     cfg = load_config(folder.file(CONFIG_FILE))

@@ -19,7 +19,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from slam.cli_eval import echo_result, echo_run
 from slam.data.layouts import formats_text
-from slam.errors import SlamError
+from slam.errors import RunInterrupted, SlamError
 from slam.run_folder import (
     CHECKPOINT_DIR,
     ODOMETRY_FILE,
@@ -119,6 +119,9 @@ def _main(
 
 
 def _fail(exc: Exception) -> None:
+    if isinstance(exc, RunInterrupted):  # the shell's convention: 128 + the signal's number
+        console.print(f"[bold yellow]stopped:[/] {escape(str(exc))}")
+        raise typer.Exit(code=128 + exc.signal_number)
     console.print(f"[bold red]error:[/] {escape(str(exc))}")
     raise typer.Exit(code=2)
 
@@ -126,7 +129,8 @@ def _fail(exc: Exception) -> None:
 def command(*args, **kwargs) -> Callable[[Callable], Callable]:
     """``app.command`` with the command line's one error boundary: a :class:`SlamError` (what
     the library raises for anything the user can fix) is printed as ``error: ...`` and exits
-    with code 2; anything else is a bug and keeps its traceback."""
+    with code 2 (a run stopped by a signal: ``stopped: ...``, 128 + the signal's number, as a
+    shell reports it); anything else is a bug and keeps its traceback."""
 
     def register(fn: Callable) -> Callable:
         @functools.wraps(fn)
@@ -135,6 +139,12 @@ def command(*args, **kwargs) -> Callable[[Callable], Callable]:
                 return fn(*a, **kw)
             except SlamError as exc:
                 _fail(exc)
+            except KeyboardInterrupt:  # a second Ctrl-C, or one outside a run's frame loop
+                console.print(
+                    "[bold yellow]stopped:[/] interrupted; a run folder holding a checkpoint "
+                    "continues with `slam run --resume OUT`"
+                )
+                raise typer.Exit(code=130) from None
 
         return app.command(*args, **kwargs)(guarded)
 
@@ -222,14 +232,16 @@ def run(
         Optional[int], typer.Option("--max-frames", min=1, help="Process at most N frames.")
     ] = None,
     checkpoint_every: Annotated[
-        int,
+        Optional[int],
         typer.Option(
             "--checkpoint-every",
             min=0,
             help=f"Write the run's state to OUT/{CHECKPOINT_DIR}/ every N frames (0: never), so "
-            "`--resume` can continue it after a crash or kill.",
+            "`--resume` can continue it after a crash or kill. Default: automatically, at most "
+            "2% of the run time (and always on Ctrl-C or SIGTERM, which stop after the current "
+            "frame).",
         ),
-    ] = 0,
+    ] = None,
     resume: Annotated[
         Optional[Path],
         typer.Option(
@@ -276,7 +288,7 @@ def run(
             result, run_dir = resume_run(
                 resume,
                 progress=bar.on_frame,
-                checkpoint_every=checkpoint_every or None,
+                checkpoint_every=checkpoint_every,
                 rerun=rerun,
             )
         else:

@@ -27,6 +27,11 @@ class FrameSizeError(FrameReadError):
     """A frame's depth image does not have the calibration's size."""
 
 
+class FrameError(SlamError):
+    """A frame handed to the system is malformed: depth not an HxW array, colour of another
+    size or type, a non-finite timestamp (a bad ``K`` is a :class:`CalibrationError`)."""
+
+
 class TrajectoryError(SlamError):
     """A trajectory file is malformed or two trajectories cannot be associated."""
 
@@ -38,3 +43,12 @@ class TrackingError(SlamError):
 class RunFolderError(SlamError):
     """The run folder cannot be used: not a folder, not writable, holds another run, or has no
     complete run (no ``metrics.json``) where one is needed."""
+
+
+class RunInterrupted(SlamError):
+    """A run stopped by a signal (Ctrl-C: SIGINT, or SIGTERM) between two frames. Its message
+    says where the state was saved and how to continue; ``signal_number`` is the signal."""
+
+    def __init__(self, message: str, signal_number: int) -> None:
+        super().__init__(message)
+        self.signal_number = signal_number

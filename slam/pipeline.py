@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import logging
 import resource
+import signal
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -17,7 +19,7 @@ import numpy as np
 from slam.config import SlamConfig
 from slam.data.base import Frame, Sequence
 from slam.data.checks import check_sequence
-from slam.errors import FrameReadError, RunFolderError, SlamError
+from slam.errors import FrameReadError, RunFolderError, RunInterrupted, SlamError
 from slam.records import TrackingStatus
 from slam.results import RunResult
 from slam.run_folder import submaps_dir
@@ -61,6 +63,106 @@ def _prefetch(
             yield pending.popleft()
 
 
+#: With automatic checkpoints (``checkpoint_every=None`` and a run folder), writing them costs
+#: at most this fraction of the run's time: the next one is due once the run has spent
+#: 1 / fraction times the last one's cost since it (the first after :data:`FIRST_CHECKPOINT`
+#: frames).
+CHECKPOINT_BUDGET = 0.02
+FIRST_CHECKPOINT = 100
+
+
+class Checkpoints:
+    """The run's checkpoints: when the next is due (every ``every`` frames, or with ``every``
+    None within :data:`CHECKPOINT_BUDGET` of the run time, from what each one cost) and
+    writing them (a failed write is a warning: the run goes on, the last one stands)."""
+
+    def __init__(self, run_dir: str | Path | None, every: int | None) -> None:
+        self.run_dir = run_dir
+        self.every = 0 if run_dir is None else every
+        self.t_last = time.perf_counter()
+        self.last_cost_s: float | None = None
+        self.count, self.ms = 0, 0.0
+
+    def due(self, done: int, start: int) -> bool:
+        if self.every is not None:
+            return self.every > 0 and done % self.every == 0
+        if self.last_cost_s is None:
+            return done - start >= FIRST_CHECKPOINT
+        return time.perf_counter() - self.t_last >= self.last_cost_s / CHECKPOINT_BUDGET
+
+    def written(self, cost_s: float) -> None:
+        self.last_cost_s, self.t_last = cost_s, time.perf_counter()
+        self.ms += cost_s * 1e3
+
+    def save(self, system: Slam, done: int, total: int) -> bool:
+        """Write the state after ``done`` of ``total`` frames; False when it failed."""
+        assert self.run_dir is not None
+        t1 = time.perf_counter()
+        every = -1 if self.every is None else self.every  # -1: automatic
+        try:
+            write_checkpoint(self.run_dir, system.state_dict(), done, every)
+            self.count += 1
+            return True
+        except OSError as exc:  # e.g. a full disk
+            log.warning(
+                "checkpoint at frame %d of %d not written (%s); the run goes on, and "
+                "--resume would continue from the previous checkpoint",
+                done, total, exc,
+            )  # fmt: skip
+            return False
+        finally:
+            self.written(time.perf_counter() - t1)
+
+
+class StopOnSignal:
+    """While active (in the main thread only), the first SIGINT (Ctrl-C) or SIGTERM asks the
+    run to stop after the frame it is on (``requested``); a second one stops at once, as
+    without this (the last checkpoint stands)."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.requested: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> StopOnSignal:
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.requested = signum
+        for sig, handler in self._previous.items():  # a second signal: the usual behaviour
+            signal.signal(sig, handler)
+        log.warning(
+            "%s: stopping after this frame and saving the state, or finishing the run if its "
+            "frames are done (again to stop at once)",
+            signal.Signals(signum).name,
+        )
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous = {}
+
+
+def _interrupted(
+    signum: int, done: int, total: int, run_dir: str | Path | None, saved: bool
+) -> RunInterrupted:
+    name = signal.Signals(signum).name
+    if saved:
+        where = (
+            f"the state after frame {done} of {total} is saved in {Path(run_dir or '')}: continue "
+            f"with `slam run --resume {run_dir}` (or slam.resume_run)"
+        )
+    elif run_dir is not None:
+        where = f"the state could not be saved in {run_dir} (see the warning above)"
+    else:
+        where = "nothing was saved (no run folder: pass run_dir to make a run resumable)"
+    return RunInterrupted(f"run interrupted by {name} after frame {done} of {total}: {where}", signum)
+
+
 def run(
     sequence: Sequence,
     config: SlamConfig | None = None,
@@ -74,9 +176,12 @@ def run(
 
     ``run_dir``: the run folder, where finished submaps wait and checkpoints go (default: a
     temporary folder, no checkpoints). ``checkpoint_every``: write the state to
-    ``run_dir/checkpoint/`` every N frames (0: never; None: 0, or when resuming the
-    interrupted run's N). ``resume``: continue from that checkpoint (the same sequence and
-    config as the interrupted run).
+    ``run_dir/checkpoint/`` every N frames (0: never; None: automatically, within
+    :data:`CHECKPOINT_BUDGET` of the run time, or when resuming as the interrupted run did).
+    ``resume``: continue from that checkpoint (the same sequence and config as the interrupted
+    run). Called from the main thread, a first SIGINT (Ctrl-C) or SIGTERM stops the run after
+    the current frame, saves the state (with a run folder) and raises
+    :class:`~slam.errors.RunInterrupted`, whose message says how to resume.
     """
     cfg = (config or SlamConfig()).validate()
     if (checkpoint_every or resume) and run_dir is None:
@@ -99,7 +204,8 @@ def run(
         assert run_dir is not None
         state, start = read_checkpoint(run_dir)
         if checkpoint_every is None:
-            checkpoint_every = int(state.get("checkpoint_every", 0))
+            every = state.get("checkpoint_every", 0)
+            checkpoint_every = None if every is None or every < 0 else int(every)
         try:
             system.load_state_dict(state)
         except (KeyError, TypeError, ValueError, IndexError) as exc:
@@ -110,41 +216,35 @@ def run(
         log.info("resuming %s at frame %d of %d", run_dir, start, len(indices))
     else:
         check_sequence(sequence, indices)
-    checkpoint_every = checkpoint_every or 0
-    n_checkpoints, checkpoint_ms = 0, 0.0
-    for done, (i, future) in enumerate(_prefetch(sequence, indices[start:]), start + 1):
-        t0 = time.perf_counter()
-        try:
-            frame = future.result()
-        except FrameReadError as exc:
-            system.skip(i, sequence.timestamp(i), str(exc))
-            if progress:
-                progress(done, len(indices), None)
-            continue
-        system.stage_ms["load"] += (time.perf_counter() - t0) * 1e3
-        result = system.step(frame)
-        if on_frame:
-            on_frame(frame, result)
-        if progress:
-            progress(done, len(indices), result.status)
-        if checkpoint_every and done % checkpoint_every == 0 and done < len(indices):
-            assert run_dir is not None
-            t1 = time.perf_counter()
+    checkpoints = Checkpoints(run_dir, checkpoint_every)
+    total = len(indices)
+    with StopOnSignal() as stop:
+        for done, (i, future) in enumerate(_prefetch(sequence, indices[start:]), start + 1):
+            t0 = time.perf_counter()
             try:
-                write_checkpoint(run_dir, system.state_dict(), done, checkpoint_every)
-                n_checkpoints += 1
-            except OSError as exc:  # e.g. a full disk: the run goes on, the last one stands
-                log.warning(
-                    "checkpoint at frame %d of %d not written (%s); the run goes on, and "
-                    "--resume would continue from the previous checkpoint",
-                    done, len(indices), exc,
-                )  # fmt: skip
-            checkpoint_ms += (time.perf_counter() - t1) * 1e3
-    result = system.finish()
+                frame = future.result()
+            except FrameReadError as exc:
+                system.skip(i, sequence.timestamp(i), str(exc))
+                if progress:
+                    progress(done, total, None)
+                continue
+            system.stage_ms["load"] += (time.perf_counter() - t0) * 1e3
+            step = system.step(frame)
+            if on_frame:
+                on_frame(frame, step)
+            if progress:
+                progress(done, total, step.status)
+            if stop.requested is not None:
+                saved = run_dir is not None and checkpoints.save(system, done, total)
+                raise _interrupted(stop.requested, done, total, run_dir, saved)
+            if done < total and checkpoints.due(done, start):
+                checkpoints.save(system, done, total)
+        # a first signal from here on lets the run finish (its results are then complete)
+        result = system.finish()
     m = result.metrics
     m.sequence = str(sequence.path)
-    m.checkpoints = n_checkpoints
-    m.checkpoint_ms = round(checkpoint_ms, 1)
+    m.checkpoints = checkpoints.count
+    m.checkpoint_ms = round(checkpoints.ms, 1)
     if resume:
         m.resumed_at_frame = start
     m.peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)

@@ -1,0 +1,113 @@
+"""Ctrl-C and SIGTERM: the run stops after the frame it is on, saves its state and says how to
+resume; a resumed run finishes. Automatic checkpoints keep within their time budget."""
+
+from __future__ import annotations
+
+import os
+import signal
+from pathlib import Path
+
+import pytest
+
+from slam import pipeline
+from slam.config import config_from_dict
+from slam.data import open_sequence
+from slam.errors import RunInterrupted
+from slam.run_folder.checkpoint import has_checkpoint, read_checkpoint
+
+SMALL = {"dataset": {"max_frames": 30}, "tracking": {"downsample": 1}}
+
+
+def _signal_at(frame: int, signum: int):
+    def progress(done, total, status):
+        if done == frame:
+            os.kill(os.getpid(), signum)
+
+    return progress
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_stops_after_the_frame_saves_and_the_run_resumes(
+    synth_loop_320, tmp_path, signum
+):
+    seq = open_sequence(synth_loop_320)
+    cfg = config_from_dict(SMALL)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    before = signal.getsignal(signum)
+    with pytest.raises(RunInterrupted) as err:
+        pipeline.run(seq, cfg, run_dir=run_dir, checkpoint_every=0, progress=_signal_at(12, signum))
+    assert err.value.signal_number == signum
+    msg = str(err.value)
+    assert f"interrupted by {signal.Signals(signum).name} after frame 12 of 30" in msg
+    assert f"slam run --resume {run_dir}" in msg
+    assert signal.getsignal(signum) is before  # the handlers are put back
+    # saved although checkpoints were off: the state after frame 12
+    assert has_checkpoint(run_dir)
+    state, position = read_checkpoint(run_dir)
+    assert position == 12
+    res = pipeline.run(seq, cfg, run_dir=run_dir, resume=True)
+    assert len(res.trajectory) == 30 and res.metrics.resumed_at_frame == 12
+
+
+def test_without_a_run_folder_nothing_is_saved_and_the_message_says_so(synth_loop_320):
+    seq = open_sequence(synth_loop_320)
+    with pytest.raises(RunInterrupted, match="nothing was saved .no run folder"):
+        pipeline.run(seq, config_from_dict(SMALL), progress=_signal_at(5, signal.SIGINT))
+
+
+def test_automatic_checkpoints_keep_within_their_budget(monkeypatch):
+    clock = [0.0]
+    monkeypatch.setattr(pipeline.time, "perf_counter", lambda: clock[0])
+    s = pipeline.Checkpoints("run", None)
+    assert not s.due(pipeline.FIRST_CHECKPOINT - 1, 0) and s.due(pipeline.FIRST_CHECKPOINT, 0)
+    s.written(0.5)  # a checkpoint that took 0.5 s: the next one after 0.5 / 2% = 25 s
+    clock[0] = 24.9
+    assert not s.due(200, 0)
+    clock[0] = 25.0
+    assert s.due(200, 0)
+    fixed = pipeline.Checkpoints("run", 20)
+    assert fixed.due(40, 0) and not fixed.due(41, 0)
+    assert not pipeline.Checkpoints("run", 0).due(100, 0)
+    assert not pipeline.Checkpoints(None, None).due(100, 0)  # no run folder, no checkpoints
+
+
+def test_a_resumed_automatic_run_stays_automatic(synth_loop_320, tmp_path):
+    seq = open_sequence(synth_loop_320)
+    run_dir = Path(tmp_path / "run")
+    run_dir.mkdir()
+    with pytest.raises(RunInterrupted):
+        pipeline.run(
+            seq, config_from_dict(SMALL), run_dir=run_dir, progress=_signal_at(4, signal.SIGINT)
+        )
+    state, _ = read_checkpoint(run_dir)
+    assert state["checkpoint_every"] == -1  # automatic
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_the_command_line_stops_says_how_to_resume_and_resumes(synth_loop_320, tmp_path, signum):
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "slam", "run", str(synth_loop_320), "--out", str(out), "-q"]
+    cmd += ["--max-frames", "150"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 120
+    while not (out / "config.yaml").exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(2.0)  # into the frame loop (150 frames take far longer)
+    proc.send_signal(signum)
+    text, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 128 + signum, text
+    name = signal.Signals(signum).name
+    assert f"stopped: run interrupted by {name} after frame " in text
+    assert f"continue with `slam run --resume {out}`" in text
+    assert "Traceback" not in text
+    done = subprocess.run(
+        [sys.executable, "-m", "slam", "run", "--resume", str(out), "-q"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert (out / "metrics.json").exists() and not (out / "checkpoint").exists()
