@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slam.errors import CalibrationError
+
 
 def backproject(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Vertex map HxWx3 in the camera frame: ``v = depth * K^-1 [u, v, 1]``; zero where no depth."""
@@ -35,3 +37,38 @@ def scale_intrinsics(K: np.ndarray, factor: float) -> np.ndarray:
     Ks[0, 2] = (K[0, 2] + 0.5) / factor - 0.5
     Ks[1, 2] = (K[1, 2] + 0.5) / factor - 0.5
     return Ks
+
+
+def check_intrinsics(K: object, width: int, height: int, where: str = "K") -> np.ndarray:
+    """``K`` as a float 3x3 array when it is a pinhole intrinsic matrix for a ``width`` x
+    ``height`` image: finite, ``fx, fy > 0``, no skew, last row ``0 0 1``, principal point
+    inside the image. Otherwise a :class:`~slam.errors.CalibrationError` that names ``where``,
+    the value seen and the expected form."""
+    form = "[[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels"
+    try:
+        arr = np.array(K, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(
+            f"{where}: not a numeric 3x3 matrix ({exc}); expected {form}"
+        ) from exc
+    if arr.shape != (3, 3):
+        raise CalibrationError(
+            f"{where}: intrinsic matrix of shape {arr.shape}, expected 3x3 {form}"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise CalibrationError(f"{where}: non-finite entries in {arr.tolist()}; expected {form}")
+    fx, fy, cx, cy = arr[0, 0], arr[1, 1], arr[0, 2], arr[1, 2]
+    if fx <= 0 or fy <= 0:
+        raise CalibrationError(
+            f"{where}: focal lengths must be positive, got fx={fx:g} fy={fy:g}; expected {form}"
+        )
+    if not np.array_equal(arr[2], [0.0, 0.0, 1.0]) or arr[0, 1] != 0 or arr[1, 0] != 0:
+        raise CalibrationError(
+            f"{where}: expected {form} (no skew, last row [0, 0, 1]), got {arr.tolist()}"
+        )
+    if not (-0.5 <= cx <= width - 0.5 and -0.5 <= cy <= height - 0.5):
+        raise CalibrationError(
+            f"{where}: principal point (cx={cx:g}, cy={cy:g}) lies outside the {width}x{height} "
+            "image; cx and cy are pixel coordinates (about width/2 and height/2)"
+        )
+    return arr

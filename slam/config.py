@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
+import numbers
 import types
 import typing
 from dataclasses import dataclass, field
@@ -17,6 +19,22 @@ import yaml
 
 from slam.data.layouts import LAYOUT_NAMES, layout_names_text
 from slam.errors import ConfigError
+
+#: The largest TSDF block edge, ``mapping.voxel_size_m`` x ``mapping.block_resolution`` (0.02 m
+#: voxels with the default 8^3 blocks). Open3D's ray-cast (0.20) bounds its rays by projecting
+#: every block into 16x16-pixel fragments of a coarse range map, kept in a buffer sized
+#: ~1/voxel_size: when a frame needs more fragments than that buffer holds, the blocks that
+#: spill over are counted but not written, and if one of them spans several fragments (a large
+#: block, or one near the camera) the range map is built from uninitialised memory: a
+#: segmentation fault, a hang or silent corruption. Measured on tum-fr1-xyz,
+#: tum-fr3-cabinet-kf58 and 7scenes-1000 (40 frames each, the fragment count of every ray-cast
+#: replayed): uninitialised fragments from 0.03 m voxels up in two of the three sequences, none at
+#: 0.01 and 0.02 m; crashes at 0.1 m (cabinet, every run), 0.15 (7-Scenes), 0.2-0.5 m (fr1).
+MAX_BLOCK_SIZE_M = 0.16
+_VOXEL_LIMIT = (
+    "larger blocks make Open3D's ray-cast read uninitialised memory: segmentation faults from "
+    "0.1 m voxels"
+)
 
 
 @dataclass
@@ -275,7 +293,11 @@ class SlamConfig:
         return dataclasses.asdict(self)
 
     def validate(self) -> SlamConfig:
-        """Raise :class:`ConfigError` naming the first key whose value is out of range."""
+        """Raise :class:`ConfigError` naming the first key whose value is out of range: a
+        number that is not finite (NaN, infinite) anywhere in the tree, then the range of each
+        key."""
+        for key, value in _non_finite(self):
+            raise ConfigError(f"config key '{key}' must be a finite number, got {value!r}")
         d, t, m, lp, b = self.dataset, self.tracking, self.mapping, self.loop, self.backend
         ba = self.ba
         checks: list[tuple[bool, str, Any, str]] = [
@@ -314,9 +336,11 @@ class SlamConfig:
             (t.ransac.iterations >= 1, "tracking.ransac.iterations", t.ransac.iterations, ">= 1"),
             (t.ransac.inlier_threshold_m > 0, "tracking.ransac.inlier_threshold_m", t.ransac.inlier_threshold_m, "> 0"),
             (t.ransac.min_inliers >= 3, "tracking.ransac.min_inliers", t.ransac.min_inliers, ">= 3"),
-            (m.voxel_size_m > 0, "mapping.voxel_size_m", m.voxel_size_m, "> 0 (metres, e.g. 0.01)"),
-            (m.trunc_voxels > 0, "mapping.trunc_voxels", m.trunc_voxels, "> 0"),
             (m.block_resolution in (4, 8, 16), "mapping.block_resolution", m.block_resolution, "4, 8 or 16"),
+            (0 < m.voxel_size_m <= MAX_BLOCK_SIZE_M / m.block_resolution, "mapping.voxel_size_m", m.voxel_size_m,
+             f"in (0, {MAX_BLOCK_SIZE_M / m.block_resolution:g}] metres with mapping.block_resolution {m.block_resolution} "
+             f"(e.g. 0.01; a block, voxel_size_m x block_resolution, of at most {MAX_BLOCK_SIZE_M:g} m: {_VOXEL_LIMIT})"),
+            (m.trunc_voxels > 0, "mapping.trunc_voxels", m.trunc_voxels, "> 0"),
             (m.block_count >= 1, "mapping.block_count", m.block_count, ">= 1"),
             (m.depth_max_m > 0, "mapping.depth_max_m", m.depth_max_m, "> 0"),
             (m.raycast_weight_threshold >= 0, "mapping.raycast_weight_threshold", m.raycast_weight_threshold, ">= 0"),
@@ -369,6 +393,27 @@ class SlamConfig:
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+
+def _non_finite(obj: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    """(dotted key, value) of every number in a config tree that is NaN or infinite: float
+    fields, the items of lists, the values of mappings (``dataset.calibration``)."""
+    out: list[tuple[str, Any]] = []
+
+    def bad(v: Any) -> bool:
+        return isinstance(v, numbers.Real) and not isinstance(v, bool) and not math.isfinite(v)
+
+    for f in dataclasses.fields(obj):
+        value, key = getattr(obj, f.name), f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            out += _non_finite(value, f"{key}.")
+        elif isinstance(value, list | tuple):
+            out += [(key, value) for v in value if bad(v)][:1]
+        elif isinstance(value, dict):
+            out += [(f"{key}.{k}", v) for k, v in value.items() if bad(v)]
+        elif bad(value):
+            out.append((key, value))
+    return out
 
 
 def _build(cls: type, data: Any, where: str) -> Any:
@@ -440,7 +485,7 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
     if tp in (int, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"config key '{where}' must be a number, got {value!r}")
-        if tp is int and float(value) != int(value):
+        if tp is int and (not math.isfinite(value) or float(value) != int(value)):
             raise ConfigError(f"config key '{where}' must be an integer, got {value!r}")
         return tp(value)
     if tp is str:

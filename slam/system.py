@@ -30,7 +30,7 @@ import numpy as np
 from slam.backend.adjuster import BundleAdjuster
 from slam.backend.finalise import final_mesh, final_poses
 from slam.config import SlamConfig
-from slam.data.base import Frame
+from slam.data.base import Frame, checked_frame
 from slam.errors import SlamError
 from slam.frontend.tracker import Tracker
 from slam.keyframe import Keyframe
@@ -152,7 +152,10 @@ class Slam:
         self.clock.skipped = True
 
     def step(self, frame: Frame) -> FrameResult:
-        """Track one frame, fuse it, and handle keyframes, loops and relocalisation."""
+        """Track one frame, fuse it, and handle keyframes, loops and relocalisation. A
+        malformed frame (bad ``K``, depth not HxW, ...) is a :class:`SlamError` that leaves the
+        system as it was; NaN, infinite or negative depth counts as no depth."""
+        frame = checked_frame(frame)
         t_start = time.perf_counter()
         ratio, gap = self.clock.tick(frame.timestamp)
         prepared = self.tracker.prepare(frame)

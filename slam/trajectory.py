@@ -51,8 +51,13 @@ def read_tum(path: str | Path) -> Trajectory:
     path = Path(path)
     if not path.is_file():
         raise TrajectoryError(f"{path}: trajectory file not found")
-    with path.open() as f:
-        return parse_tum(f, str(path))
+    try:
+        with path.open(encoding="utf-8-sig") as f:  # a byte-order mark is not part of line 1
+            return parse_tum(f, str(path))
+    except UnicodeDecodeError as exc:
+        raise TrajectoryError(f"{path}: not UTF-8 text: {exc}") from exc
+    except OSError as exc:
+        raise TrajectoryError(f"{path}: cannot read: {exc}") from exc
 
 
 def parse_tum(lines: Iterable[str], source: str = "<text>") -> Trajectory:

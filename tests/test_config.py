@@ -43,8 +43,8 @@ def test_missing_file(tmp_path):
 @pytest.mark.parametrize(
     "data, match",
     [
-        ({"mapping": {"voxel_size_m": 0}}, r"'mapping.voxel_size_m' must be > 0 .*got 0"),
-        ({"mapping": {"voxel_size_m": -0.01}}, r"'mapping.voxel_size_m' must be > 0"),
+        ({"mapping": {"voxel_size_m": 0}}, r"'mapping.voxel_size_m' must be in \(0, 0.02\] .*got 0"),
+        ({"mapping": {"voxel_size_m": -0.01}}, r"'mapping.voxel_size_m' must be in \(0, 0.02\]"),
         ({"tracking": {"depth_max_m": -1}}, r"'tracking.depth_max_m' must be > tracking.depth_min_m"),
         ({"tracking": {"iterations": []}}, r"'tracking.iterations' must be a non-empty list"),
         ({"tracking": {"iterations": [0, 0]}}, r"'tracking.iterations' must be non-negative"),

@@ -41,14 +41,14 @@ def load_script(name: str):
 def test_sweep_voxel_size(tmp_path):
     out_csv, out_png = tmp_path / "sweep.csv", tmp_path / "sweep.png"
     proc = run_script(
-        "sweep_voxel_size.py", "--frames", 8, "--voxel", 0.02, 0.04, "--csv", out_csv,
+        "sweep_voxel_size.py", "--frames", 8, "--voxel", 0.01, 0.02, "--csv", out_csv,
         "--plot", out_png,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.startswith("| voxel [m] | frames | ATE rmse [m]")
     with out_csv.open() as f:
         rows = list(csv.DictReader(f))
-    assert [float(r["voxel_size_m"]) for r in rows] == [0.02, 0.04]
+    assert [float(r["voxel_size_m"]) for r in rows] == [0.01, 0.02]  # 0.02: the bound
     for r in rows:
         assert int(r["frames"]) == 8 and int(r["tracking_failures"]) == 0
         assert 0 < float(r["ate_rmse_m"]) < 0.03  # exact synthetic ground truth, 8 frames

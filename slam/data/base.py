@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import logging
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from slam.errors import CalibrationError, FrameSizeError
+from slam.camera import check_intrinsics
+from slam.errors import CalibrationError, FrameError, FrameSizeError
 from slam.trajectory import Trajectory
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -37,10 +41,18 @@ class Calibration:
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
             raise CalibrationError(f"image size must be positive, got {self.width}x{self.height}")
+        values = self.to_dict()
+        bad = [k for k, v in values.items() if not np.isfinite(v)]
+        if bad:
+            raise CalibrationError(
+                "calibration values must be finite numbers, got "
+                + ", ".join(f"{k}={values[k]}" for k in bad)
+            )
         if self.fx <= 0 or self.fy <= 0:
             raise CalibrationError(f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
         if self.depth_scale <= 0:
             raise CalibrationError(f"depth_scale must be positive, got {self.depth_scale}")
+        check_intrinsics(self.K, self.width, self.height, "calibration")
 
     @property
     def K(self) -> np.ndarray:
@@ -79,6 +91,9 @@ class Frame:
 
     ``color`` is HxWx3 uint8 RGB (or ``None`` for depth-only sequences); ``depth_m`` is HxW float32
     metres with 0 meaning no depth; ``K`` is the 3x3 intrinsic matrix of the depth image.
+    A malformed frame (``K`` not a pinhole matrix for the image, depth not 2-D, colour of
+    another size, a non-finite timestamp) is a :class:`FrameError` or :class:`CalibrationError`
+    when it is made; :func:`checked_frame` repeats the check where frames enter the system.
     """
 
     index: int
@@ -87,6 +102,34 @@ class Frame:
     depth_m: np.ndarray
     K: np.ndarray
 
+    def __post_init__(self) -> None:
+        where = f"frame {self.index}"
+        depth = self.depth_m
+        if not isinstance(depth, np.ndarray) or depth.ndim != 2 or depth.size == 0:
+            shape = getattr(depth, "shape", type(depth).__name__)
+            raise FrameError(f"{where}: depth_m must be an HxW array of metres, got {shape}")
+        if depth.dtype.kind not in "fiu":
+            raise FrameError(
+                f"{where}: depth_m must be numeric (float32 metres), got {depth.dtype}"
+            )
+        if self.color is not None:
+            c = self.color
+            if not isinstance(c, np.ndarray) or c.shape != (*depth.shape, 3) or c.dtype != np.uint8:
+                raise FrameError(
+                    f"{where}: color must be None or an HxWx3 uint8 RGB array of the depth's "
+                    f"size {depth.shape[1]}x{depth.shape[0]}, got "
+                    f"{getattr(c, 'shape', type(c).__name__)} {getattr(c, 'dtype', '')}".rstrip()
+                )
+        try:
+            stamp = float(self.timestamp)
+        except (TypeError, ValueError):
+            stamp = float("nan")
+        if not np.isfinite(stamp):
+            raise FrameError(
+                f"{where}: timestamp must be a finite number of seconds, got {self.timestamp!r}"
+            )
+        self.K = check_intrinsics(self.K, depth.shape[1], depth.shape[0], f"{where}: K")
+
     @property
     def height(self) -> int:
         return int(self.depth_m.shape[0])
@@ -94,6 +137,26 @@ class Frame:
     @property
     def width(self) -> int:
         return int(self.depth_m.shape[1])
+
+
+def checked_frame(frame: Frame) -> Frame:
+    """``frame`` as the system takes it: checked again (a frame's fields can be replaced after
+    it was made), depth as float32 with NaN, infinite and negative values set to 0 (no depth;
+    a debug log says how many). The caller's arrays are not changed."""
+    frame = replace(frame)  # runs the checks of Frame.__post_init__ on the current fields
+    depth = frame.depth_m
+    if depth.dtype != np.float32:
+        depth = depth.astype(np.float32)
+    bad = ~(depth >= 0) | ~np.isfinite(depth)  # NaN compares false
+    if bad.any():
+        log.debug(
+            "frame %d: %d depth values NaN, infinite or negative set to 0 (no depth)",
+            frame.index, int(bad.sum()),
+        )  # fmt: skip
+        depth = np.where(bad, np.float32(0.0), depth)
+    if depth is not frame.depth_m:
+        frame = replace(frame, depth_m=depth)
+    return frame
 
 
 class Sequence(ABC):

@@ -1,22 +1,96 @@
-"""Image decoding shared by the loaders."""
+"""Image decoding shared by the loaders. An image's header is read before it is decoded: a
+frame declaring a size it must not have is refused without allocating its pixels."""
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from slam.errors import FrameReadError
+from slam.errors import FrameReadError, FrameSizeError
+
+#: No image of an RGB-D sequence has more pixels than this (8K video is 33 MP); a header that
+#: declares more is damaged or hostile, and decoding it could take gigabytes.
+MAX_IMAGE_PIXELS = 40_000_000
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# JPEG start-of-frame markers (they carry the image size): C0-CF but C4 (DHT), C8 (JPG), CC (DAC)
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def declared_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) an image's header declares, read without decoding: PNG (the IHDR chunk,
+    bytes 16-24) and JPEG (the start-of-frame segment); ``None`` for other formats or a header
+    too damaged to say (the decoder then reports it)."""
+    if data[:8] == _PNG_SIGNATURE:
+        if len(data) < 24 or data[12:16] != b"IHDR":
+            return None
+        width, height = struct.unpack(">II", data[16:24])
+        return int(width), int(height)
+    if data[:2] != b"\xff\xd8":
+        return None
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
+            i += 2
+            continue
+        if marker == 0xDA:  # start of scan before any frame header
+            return None
+        if marker in _JPEG_SOF:
+            if i + 9 > len(data):
+                return None
+            height, width = struct.unpack(">HH", data[i + 5 : i + 9])
+            return int(width), int(height)
+        i += 2 + struct.unpack(">H", data[i + 2 : i + 4])[0]
+    return None
+
+
+def _check_declared_size(
+    data: bytes, path: Path, index: int, what: str, expected: tuple[int, int] | None = None
+) -> None:
+    """Refuse an image whose header declares more than :data:`MAX_IMAGE_PIXELS` (a
+    :class:`FrameReadError`), or a size other than ``expected`` (width, height; a
+    :class:`FrameSizeError`), before decoding it."""
+    size = declared_size(data)
+    if size is None:
+        return
+    w, h = size
+    if w * h > MAX_IMAGE_PIXELS:
+        raise FrameReadError(
+            f"frame {index}: {what} image {path} declares {w}x{h} pixels in its header "
+            f"(more than {MAX_IMAGE_PIXELS // 1_000_000} million); not decoded: the file is "
+            "damaged or not a frame of this sequence"
+        )
+    if expected is not None and (w, h) != tuple(expected):
+        raise FrameSizeError(
+            f"frame {index}: {what} image is {w}x{h} but the calibration says "
+            f"{expected[0]}x{expected[1]} (declared in the header of {path}; not decoded); fix "
+            "width/height (and fx, fy, cx, cy) in the sequence's calibration.yaml or in the "
+            "config's dataset.calibration"
+        )
+
+
+def _read_bytes(path: Path, index: int, what: str) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise FrameReadError(f"frame {index}: cannot read {what} image {path}: {exc}") from exc
 
 
 def read_color(path: Path, index: int) -> np.ndarray:
     """Read a colour image as HxWx3 uint8 RGB; raise FrameReadError naming file and frame.
-    A truncated JPEG is an error too (OpenCV would decode its first part and grey the rest)."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FrameReadError(f"frame {index}: cannot read colour image {path}: {exc}") from exc
+    A truncated JPEG is an error too (OpenCV would decode its first part and grey the rest),
+    so is a header declaring more than :data:`MAX_IMAGE_PIXELS` (refused before decoding)."""
+    data = _read_bytes(path, index, "colour")
+    _check_declared_size(data, path, index, "colour")
     if data[:2] == b"\xff\xd8" and b"\xff\xd9" not in data[-1024:]:
         raise FrameReadError(
             f"frame {index}: colour image {path} is a truncated JPEG (no end-of-image marker)"
@@ -30,10 +104,18 @@ def read_color(path: Path, index: int) -> np.ndarray:
 
 
 def read_depth(
-    path: Path, index: int, depth_scale: float, invalid_value: int | None = None
+    path: Path,
+    index: int,
+    depth_scale: float,
+    invalid_value: int | None = None,
+    size: tuple[int, int] | None = None,
 ) -> np.ndarray:
-    """Read a 16-bit depth PNG as float32 metres (0 = no depth)."""
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    """Read a 16-bit depth PNG as float32 metres (0 = no depth). ``size``: the (width, height)
+    the image must have (the calibration's): a header declaring another size is a
+    :class:`FrameSizeError` before any pixel is decoded."""
+    data = _read_bytes(path, index, "depth")
+    _check_declared_size(data, path, index, "depth", size)
+    raw = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if raw is None:
         raise FrameReadError(
             f"frame {index}: cannot decode depth image {path} (missing or corrupt)"
@@ -49,7 +131,7 @@ def read_depth(
     if invalid_value is not None and raw.dtype == np.uint16:
         raw = np.where(raw == invalid_value, 0, raw)
     depth = raw.astype(np.float32) / np.float32(depth_scale)
-    depth[~np.isfinite(depth)] = 0.0
+    depth[~(depth > 0) | ~np.isfinite(depth)] = 0.0  # NaN, inf, negative: no depth
     return depth
 
 

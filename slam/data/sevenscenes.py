@@ -90,9 +90,11 @@ class SevenScenesSequence(Sequence):
         return int(self._ids[index]) / FPS
 
     def _read(self, index: int) -> Frame:
+        c = self.calibration
         depth = read_depth(
-            self._depth[index], index, self.calibration.depth_scale, invalid_value=65535
-        )
+            self._depth[index], index, c.depth_scale, invalid_value=65535,
+            size=(c.width, c.height),
+        )  # fmt: skip
         color = read_color(self._color[index], index) if self._color is not None else None
         if color is not None and color.shape[:2] != depth.shape:
             import cv2

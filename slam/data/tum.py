@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
@@ -25,23 +26,34 @@ from slam.trajectory import Trajectory, read_tum
 log = logging.getLogger(__name__)
 
 
+#: A list where at least this fraction of the entries name a file an earlier entry already
+#: named is refused: the repeated images make a stationary camera (no motion, no lost frame).
+DUPLICATE_ERROR_FRACTION = 0.5
+_SEPARATOR = re.compile(r"[\s,]+")
+
+
 def read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
-    """Read a TUM ``timestamp filename`` list (``#`` comments). Returns sorted stamps and names."""
+    """Read a TUM ``timestamp filename`` list (``#`` comments). Returns sorted stamps and names.
+
+    The file name is everything after the timestamp and its separator (white space or a comma),
+    so names with spaces survive; a UTF-8 byte-order mark is ignored. Entries naming a file an
+    earlier entry names: a warning naming them, or a :class:`DatasetError` when they are at least
+    half of the list (:data:`DUPLICATE_ERROR_FRACTION`)."""
     if not path.is_file():
         raise DatasetError(f"{path}: list file not found (TUM layout needs rgb.txt and depth.txt)")
     stamps: list[float] = []
     names: list[str] = []
     linenos: list[int] = []
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{path}: cannot read the list: {exc}") from exc
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        parts = line.replace(",", " ").split()
-        if len(parts) < 2:
+        parts = _SEPARATOR.split(line, maxsplit=1)
+        if len(parts) < 2 or not parts[1].strip():
             raise DatasetError(f"{path}:{lineno}: expected 'timestamp filename', got {line!r}")
         try:
             stamps.append(float(parts[0]))
@@ -49,7 +61,7 @@ def read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
             raise DatasetError(f"{path}:{lineno}: bad timestamp {parts[0]!r}") from exc
         if not np.isfinite(stamps[-1]):
             raise DatasetError(f"{path}:{lineno}: bad timestamp {parts[0]!r}")
-        names.append(parts[1])
+        names.append(parts[1].strip())
         linenos.append(lineno)
     if not stamps:
         raise DatasetError(f"{path}: no entries")
@@ -61,8 +73,50 @@ def read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
                 "image needs its own time: remove or correct the duplicate line"
             )
         seen[t] = lineno
+    _check_duplicate_names(path, names, linenos, text.splitlines())
     order = np.argsort(stamps, kind="stable")
     return np.asarray(stamps)[order], [names[i] for i in order]
+
+
+def _check_duplicate_names(
+    path: Path, names: list[str], linenos: list[int], lines: list[str]
+) -> None:
+    """Entries naming a file that an earlier entry names: each image shows one moment, so a
+    repeated one makes the camera stand still. Most entries repeated: a :class:`DatasetError`;
+    a few: a warning naming them."""
+    first: dict[str, int] = {}
+    repeats: dict[str, list[int]] = {}
+    for name, lineno in zip(names, linenos):
+        if name in first:
+            repeats.setdefault(name, []).append(lineno)
+        else:
+            first[name] = lineno
+    if not repeats:
+        return
+    n_repeated = sum(len(v) for v in repeats.values())
+    worst = max(repeats, key=lambda n: len(repeats[n]))
+    example = repeats[worst][0]
+    if n_repeated >= DUPLICATE_ERROR_FRACTION * len(names):
+        raise DatasetError(
+            f"{path}: {n_repeated} of its {len(names)} entries name an image an earlier entry "
+            f"already names ({len(repeats)} file(s) repeated; {worst!r} is named "
+            f"{len(repeats[worst]) + 1} times, first on line {first[worst]}, again e.g. on "
+            f"line {example}: {lines[example - 1].strip()!r}); each entry must name its own "
+            "image (a repeated image makes the camera stand still): regenerate the list"
+        )
+    shown = ", ".join(
+        f"{n!r} (lines {first[n]}, {', '.join(map(str, repeats[n]))})" for n in list(repeats)[:5]
+    )
+    more = f" and {len(repeats) - 5} more" if len(repeats) > 5 else ""
+    log.warning(
+        "%s: %d of its %d entries name an image an earlier entry already names: %s%s; those "
+        "frames repeat an earlier image (the camera seems to stand still there)",
+        path,
+        n_repeated,
+        len(names),
+        shown,
+        more,
+    )
 
 
 def associate(a: np.ndarray, b: np.ndarray, max_diff: float = 0.02) -> list[tuple[int, int]]:
@@ -214,7 +268,15 @@ class TumSequence(Sequence):
             n for n in self._depth[:1] + (self._rgb or [])[:1] if not (self.path / n).is_file()
         ]
         if missing:
-            raise DatasetError(f"{self.path}: image listed but not found: {missing[0]}")
+            name = missing[0]
+            first = name.split()[0]
+            hint = (
+                f" (a file name is everything after the timestamp; {first!r} exists: remove "
+                "the extra columns from the list)"
+                if first != name and (self.path / first).is_file()
+                else ""
+            )
+            raise DatasetError(f"{self.path}: image listed but not found: {name!r}{hint}")
 
     @property
     def has_color(self) -> bool:
@@ -243,7 +305,10 @@ class TumSequence(Sequence):
         return rgb, self.path / self._depth[index]
 
     def _read(self, index: int) -> Frame:
-        depth = read_depth(self.path / self._depth[index], index, self.calibration.depth_scale)
+        c = self.calibration
+        depth = read_depth(
+            self.path / self._depth[index], index, c.depth_scale, size=(c.width, c.height)
+        )
         color = None
         if self._rgb is not None:
             color = read_color(self.path / self._rgb[index], index)

@@ -11,6 +11,7 @@ valid configuration, a :class:`~slam.errors.ConfigError`; a bad trajectory, a
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -45,6 +46,45 @@ def same_trajectory(a: Trajectory, b: Trajectory) -> bool:
         and bool(np.array_equal(a.timestamps, b.timestamps))
         and bool(np.array_equal(a.poses, b.poses))
     )
+
+
+#: The fields of a ``loops.json`` candidate (:meth:`slam.records.LoopRecord.as_json`) that
+#: readers use, and their JSON types (bool is not a number here).
+_LOOP_FIELDS: dict[str, tuple[type, ...]] = {
+    **dict.fromkeys(("query_kf", "match_kf", "query_frame", "match_frame"), (int,)),
+    **dict.fromkeys(("matches", "inliers"), (int,)),
+    **dict.fromkeys(
+        ("query_timestamp", "match_timestamp", "score", "inlier_ratio", "icp_fitness", "overlap"),
+        (int, float),
+    ),
+    "accepted": (bool,),
+    "reason": (str,),
+}
+_WANT = {int: "an integer", float: "a finite number", bool: "true or false", str: "a string"}
+
+
+def _loop_candidate_problem(c: Any) -> str | None:
+    """What is wrong with one ``loops.json`` candidate (``None``: nothing): not an object, a
+    field of the wrong type or a non-finite number, a ``T_match_query`` that is not 4x4."""
+    if not isinstance(c, dict):
+        return f"expected an object, got {type(c).__name__} {str(c)[:60]!r}"
+    for key, types_ in _LOOP_FIELDS.items():
+        if key not in c:
+            continue
+        v = c[key]
+        wrong = not isinstance(v, types_) or (isinstance(v, bool) and bool not in types_)
+        if wrong or (isinstance(v, float) and not math.isfinite(v)):
+            return f"'{key}' must be {_WANT[types_[-1]]}, got {v!r}"
+    if "T_match_query" in c:
+        T = c["T_match_query"]
+        ok = isinstance(T, list) and len(T) == 4
+        ok = ok and all(isinstance(r, list) and len(r) == 4 for r in T)
+        ok = ok and all(
+            isinstance(x, int | float) and not isinstance(x, bool) for r in T for x in r
+        )
+        if not ok:
+            return f"'T_match_query' must be a 4x4 list of numbers, got {str(T)[:80]}"
+    return None
 
 
 class RunFolder:
@@ -145,7 +185,15 @@ class RunFolder:
                 f"{self.file(LOOPS_FILE)}: expected an object with a 'candidates' list, "
                 f"got {type(data).__name__}"
             )
-        return [c for c in cands if isinstance(c, dict)]
+        for k, c in enumerate(cands):
+            problem = _loop_candidate_problem(c)
+            if problem is not None:
+                raise RunFolderError(
+                    f"{self.file(LOOPS_FILE)}: loop candidate {k} (of {len(cands)}) is damaged: "
+                    f"{problem}; restore the file from the run, or delete it to go on without "
+                    "the loop details"
+                )
+        return list(cands)
 
     def accepted_loops(self) -> list[dict[str, Any]]:
         """The accepted loop candidates (``[]`` without ``loops.json``)."""
