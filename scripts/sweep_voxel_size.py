@@ -1,7 +1,7 @@
 """ATE versus TSDF voxel size: an example evaluation script built on the ``slam`` API.
 
     python scripts/sweep_voxel_size.py                         # small synthetic sequence, ~20 s
-    python scripts/sweep_voxel_size.py --voxel 0.005 0.01 0.02 0.04 --frames 100
+    python scripts/sweep_voxel_size.py --voxel 0.005 0.01 0.015 0.02 --frames 100
     python scripts/sweep_voxel_size.py --sequence ../shared/datasets/7scenes-1000 \\
         --frames 300 --csv sweep.csv --plot sweep.png
 
@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sequence", type=Path, help="sequence folder (default: synthetic)")
     ap.add_argument("--frames", type=int, default=20, help="frames to process (default 20)")
     ap.add_argument(
-        "--voxel", type=float, nargs="+", default=[0.01, 0.02, 0.04], help="voxel sizes [m]"
+        "--voxel", type=float, nargs="+", default=[0.01, 0.015, 0.02], help="voxel sizes [m]"
     )
     ap.add_argument("--csv", type=Path, help="also write the table as CSV")
     ap.add_argument("--plot", type=Path, help="also plot ATE vs voxel size to this PNG")

@@ -118,6 +118,16 @@ class TrackingConfig:
     # filling the view or a corridor; texture does not
     max_acceleration_m_s2: float = 10.0
     motion_check_photometric_weight: float = 1.0
+    # geometry is blind when the frame's own depth constrains the pose this many times worse
+    # along its weakest direction than along its strongest (standard deviations, rotations as
+    # motion at the scene's depth; slam.frontend.weighted_icp.depth_constraint, on the ICP
+    # pyramid's level 1: 160 x 120 for VGA): then the 2.5 m near cut is dropped when all depth
+    # is not blind, else colour joins depth in every alignment of the frame at
+    # motion_check_photometric_weight.
+    # Measured on every frame (the range tracking uses): real fr1 <= 15, 7-Scenes <= 23, the
+    # cabinet (a large box) <= 30; synthetic rooms and desks <= 20; a wall filling the view up
+    # to 160, corridors 48-95, the hall 30-58
+    degenerate_ratio: float = 40.0
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
     # robustness: a frame with less usable depth than this fraction of its pixels is lost
@@ -314,6 +324,7 @@ class SlamConfig:
             (t.depth_noise_sigma0_m > 0, "tracking.depth_noise_sigma0_m", t.depth_noise_sigma0_m, "> 0"),
             (t.max_acceleration_m_s2 > 0, "tracking.max_acceleration_m_s2", t.max_acceleration_m_s2, "> 0"),
             (t.motion_check_photometric_weight >= 0, "tracking.motion_check_photometric_weight", t.motion_check_photometric_weight, ">= 0"),
+            (t.degenerate_ratio >= 1, "tracking.degenerate_ratio", t.degenerate_ratio, ">= 1"),
             (t.depth_noise_quadratic >= 0, "tracking.depth_noise_quadratic", t.depth_noise_quadratic, ">= 0"),
             (t.max_correspondence_m > 0, "tracking.max_correspondence_m", t.max_correspondence_m, "> 0"),
             (t.huber_delta_m > 0, "tracking.huber_delta_m", t.huber_delta_m, "> 0"),

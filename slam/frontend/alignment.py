@@ -9,13 +9,14 @@ model's ray-cast.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from slam.config import TrackingConfig
-from slam.frontend.frame import PreparedFrame
-from slam.frontend.icp import IcpResult, projective_overlap
+from slam.frontend.frame import PreparedFrame, depth_noise
+from slam.frontend.icp import IcpResult, projective_agreement
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
 from slam.frontend.photometric import RgbdImage, grey
@@ -144,7 +145,13 @@ def align_to_model(
     ):
         step = np.eye(4)
         att.status.model_rejected = True
-    score = projective_overlap(p.depth_m, render.depth_m, p.K_track, step, cfg.inlier_threshold_m)
+    score, rmse = projective_agreement(
+        p.depth_m, render.depth_m, p.K_track, step, cfg.inlier_threshold_m,
+        noise=depth_noise(cfg), source_max_m=model.depth_max_m,
+    )  # fmt: skip
+    # the ICP's residual as measured against the model, in metres (Open3D's inlier_rmse is
+    # not: 1e-5 "m" on Kinect data)
+    icp = dataclasses.replace(icp, inlier_rmse=rmse)
     return T_world_guess @ step, icp, score
 
 

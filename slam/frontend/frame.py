@@ -21,7 +21,7 @@ from slam.frontend.features import OrbExtractor
 from slam.frontend.icp import IcpResult, projective_icp
 from slam.frontend.photometric import RgbdImage, grey, joint_align
 from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth
-from slam.frontend.weighted_icp import DepthNoise, SourcePoints
+from slam.frontend.weighted_icp import DepthNoise, SourcePoints, depth_constraint
 from slam.keyframe import FeatureSet, KeyframeView
 
 
@@ -52,6 +52,24 @@ def icp_depth_range(
     return near_max_m if valid and near >= near_fraction * valid else depth_max_m
 
 
+def _blind_check(
+    pyramid: list[np.ndarray], K_track: np.ndarray, icp_max: float, cfg: TrackingConfig
+) -> tuple[float, float]:
+    """The ICP depth range and its constraint ratio (:func:`depth_constraint` on pyramid level
+    1). The near cut is kept only where the near depth alone constrains the pose: when it is
+    blind (ratio above ``degenerate_ratio``) and all depth up to ``depth_max_m`` is less so,
+    all depth is used (a wall filling the view whose far corners are the only hold)."""
+    level = min(1, len(pyramid) - 1)
+    K = scale_intrinsics(K_track, 2**level)
+    noise = depth_noise(cfg)
+    ratio = depth_constraint(pyramid[level], K, icp_max, noise).ratio
+    if ratio > cfg.degenerate_ratio and icp_max < cfg.depth_max_m:
+        ratio_all = depth_constraint(pyramid[level], K, cfg.depth_max_m, noise).ratio
+        if ratio_all < ratio:
+            return cfg.depth_max_m, ratio_all
+    return icp_max, ratio
+
+
 def depth_noise(cfg: TrackingConfig) -> DepthNoise:
     """The depth sensor's noise model of the tracking config."""
     return DepthNoise(cfg.depth_noise_sigma0_m, cfg.depth_noise_quadratic)
@@ -80,6 +98,7 @@ class PreparedFrame:
     orb: OrbExtractor | None = field(default=None, repr=False)
     prep_ms: float = 0.0
     colour_registered: bool = False  # the photometric term can be built (on demand)
+    constraint_ratio: float = 0.0  # how blind its depth is in its weakest direction (>= 1)
     _features: FeatureSet | None = field(default=None, init=False, repr=False)
     _extracted: bool = field(default=False, init=False, repr=False)
 
@@ -116,13 +135,14 @@ class PreparedFrame:
             icp_max = icp_depth_range(
                 depth, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
             )
+        icp_max, ratio = _blind_check(pyramid, K_track, icp_max, cfg)
         rgbd = None
         if photometric and frame.color is not None:
             rgbd = RgbdImage(pyramid, grey(frame.color, cfg.downsample), K_track, levels)
         prep_ms = (time.perf_counter() - t0) * 1e3
         registered = colour_registered and frame.color is not None
         return PreparedFrame(
-            frame, depth, pyramid, K_track, icp_max, points, rgbd, orb, prep_ms, registered
+            frame, depth, pyramid, K_track, icp_max, points, rgbd, orb, prep_ms, registered, ratio
         )
 
     @property
@@ -210,4 +230,5 @@ class PreparedFrame:
             cfg.huber_delta_m,
             cfg.coarse_correspondence_factor,
             cfg.photometric_weight if weight is None else weight,
+            fitness_depth_max_m=self.icp_depth_max_m,
         )

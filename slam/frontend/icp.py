@@ -28,7 +28,9 @@ class IcpResult:
     """``T_target_source`` maps source-camera points into the target camera frame."""
 
     T_target_source: np.ndarray
-    fitness: float  # fraction of source pixels with a valid correspondence (finest level)
+    # fraction of the source pixels in range (valid, nearer than the ICP depth range) with a
+    # valid correspondence (finest level)
+    fitness: float
     inlier_rmse: float  # point-to-plane RMSE of the correspondences, metres
     # the pose's information (6x6, rotation then translation) under the depth noise model and
     # the median depth of the correspondences; None where the finest level was Open3D's
@@ -114,8 +116,12 @@ def projective_icp(
     except RuntimeError as exc:  # Open3D raises on a singular 6x6 system (too few correspondences)
         log.debug("ICP failed: %s", exc)
         return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, float("inf"))
+    # Open3D's fitness is a fraction of all pixels; ours, of the source pixels ICP could use
+    # (valid and within depth_max_m): a far scene keeps most of its pixels beyond the range
+    usable = np.count_nonzero((source_depth_m > 0) & (source_depth_m < depth_max_m))
+    fitness = min(1.0, result.fitness * source_depth_m.size / usable) if usable else 0.0
     return IcpResult(
-        result.transformation.numpy().astype(float), result.fitness, result.inlier_rmse
+        result.transformation.numpy().astype(float), fitness, result.inlier_rmse
     )
 
 
@@ -151,7 +157,7 @@ def _weighted_icp(
             src = SourcePoints.from_depth(np.where(d < depth_max_m, d, 0.0), K_l, noise)
         vertex = vertex_map(np.asarray(tgt_pyr[level], np.float32), K_l)
         res = weighted_point_to_plane(
-            src, vertex, normal_map(vertex), K_l, T, n_iter,
+            src, vertex, normal_map(vertex, f_px=float(K_l[0, 0])), K_l, T, n_iter,
             max_correspondence_m * coarse_factor**level,
         )  # fmt: skip
         if res is None:
@@ -177,17 +183,47 @@ def projective_overlap(
     T_target_source: np.ndarray,
     threshold_m: float = 0.03,
     step: int = 2,
+    noise: DepthNoise | None = None,
+    noise_sigmas: float = 3.0,
+    source_max_m: float = float("inf"),
 ) -> float:
     """Fraction of valid source pixels that land, after ``T_target_source``, within
-    ``threshold_m`` (along the ray) of the target depth at their projected pixel.
+    ``threshold_m`` (along the ray) of the target depth at their projected pixel; with a
+    ``noise`` model the gate of a pixel widens to ``noise_sigmas`` of its depth noise where
+    that is larger (far depth: a Kinect's sigma is 2 cm at 3.5 m, 6 cm at 6 m). Source pixels
+    deeper than ``source_max_m`` are not counted (a model fused up to that depth cannot hold
+    them: in a hall most of the view is beyond it).
 
     An alignment score independent of the optimiser; used to verify and rank ICP results.
     Every ``step``-th pixel in each direction is tested (the score is a fraction).
     """
-    v, u = np.nonzero(source_depth_m[::step, ::step] > 0)
+    return projective_agreement(
+        source_depth_m, target_depth_m, K, T_target_source, threshold_m, step, noise,
+        noise_sigmas, source_max_m, residuals=False,
+    )[0]  # fmt: skip
+
+
+def projective_agreement(
+    source_depth_m: np.ndarray,
+    target_depth_m: np.ndarray,
+    K: np.ndarray,
+    T_target_source: np.ndarray,
+    threshold_m: float = 0.03,
+    step: int = 2,
+    noise: DepthNoise | None = None,
+    noise_sigmas: float = 3.0,
+    source_max_m: float = float("inf"),
+    residuals: bool = True,
+) -> tuple[float, float]:
+    """:func:`projective_overlap` and the point-to-plane RMSE (metres) of the agreeing pixels
+    against the target surface (its normal from the target depth's neighbours at the pixel;
+    pixels without a normal are left out); the RMSE is NaN when none agrees (or not
+    ``residuals``)."""
+    sub = source_depth_m[::step, ::step]
+    v, u = np.nonzero((sub > 0) & (sub <= source_max_m))
     v, u = v * step, u * step
     if len(u) == 0:
-        return 0.0
+        return 0.0, float("nan")
     z = source_depth_m[v, u].astype(np.float64)
     pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
     p = pts @ T_target_source[:3, :3].T + T_target_source[:3, 3]
@@ -199,5 +235,33 @@ def projective_overlap(
     inside = (ut >= 0) & (ut < w) & (vt >= 0) & (vt < h)
     zt = np.zeros(len(p))
     zt[inside] = target_depth_m[vt[inside], ut[inside]]
-    good = (zt > 0) & (np.abs(zt - p[:, 2]) < threshold_m)
-    return float(good.sum()) / len(u)
+    gate = threshold_m
+    if noise is not None:
+        gate = np.maximum(threshold_m, noise_sigmas * noise.sigma(p[:, 2]))
+    good = (zt > 0) & (np.abs(zt - p[:, 2]) < gate)
+    fraction = float(good.sum()) / len(u)
+    if not residuals or not good.any():
+        return fraction, float("nan")
+    r = _point_to_plane(target_depth_m, K, p[good], ut[good], vt[good])
+    return fraction, float(np.sqrt(np.mean(r**2))) if len(r) else float("nan")
+
+
+def _point_to_plane(
+    depth: np.ndarray, K: np.ndarray, p: np.ndarray, u: np.ndarray, v: np.ndarray
+) -> np.ndarray:
+    """Distances of points ``p`` (target camera frame) to the target surface's tangent plane
+    at pixels (u, v), the normal from central differences of the target's vertices there."""
+    h, w = depth.shape
+    ok = (u > 0) & (u < w - 1) & (v > 0) & (v < h - 1)
+    p, u, v = p[ok], u[ok], v[ok]
+
+    def vertex(uu: np.ndarray, vv: np.ndarray) -> np.ndarray:
+        zz = depth[vv, uu].astype(np.float64)
+        return np.stack([(uu - K[0, 2]) * zz / K[0, 0], (vv - K[1, 2]) * zz / K[1, 1], zz], -1)
+
+    right, left, down, up = vertex(u + 1, v), vertex(u - 1, v), vertex(u, v + 1), vertex(u, v - 1)
+    n = np.cross(right - left, down - up)
+    norm = np.linalg.norm(n, axis=1)
+    known = (norm > 1e-12) & (right[:, 2] > 0) & (left[:, 2] > 0) & (down[:, 2] > 0) & (up[:, 2] > 0)
+    q = vertex(u[known], v[known])
+    return np.einsum("ij,ij->i", p[known] - q, n[known] / norm[known, None])

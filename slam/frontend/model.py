@@ -29,7 +29,11 @@ class TrackingModel(Protocol):
 
     ``K``, ``width``, ``height``: the tracking-resolution camera; ``T_world_cam``: the guessed
     pose; ``frustum_depth_m``: the frame's depth at that resolution, which bounds the rays to the
-    blocks the frame can see (the model decides how to use it)."""
+    blocks the frame can see (the model decides how to use it). ``depth_max_m``: depth beyond
+    this is never fused, so the model cannot hold what the frame sees beyond it."""
+
+    @property
+    def depth_max_m(self) -> float: ...
 
     def raycast(
         self,

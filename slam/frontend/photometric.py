@@ -90,7 +90,7 @@ def _target_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray
     h, w = depth.shape
     z = depth.astype(np.float32)
     vertex = vertex_map(z, K)
-    normal = normal_map(vertex)
+    normal = normal_map(vertex, f_px=float(K[0, 0]))
     photo = None
     if intensity is not None:
         i = np.asarray(intensity, np.float32)
@@ -224,6 +224,7 @@ def joint_align(
     min_geo_scale_m: float = 5e-4,
     min_pho_scale: float = 2.0 / 255.0,
     finest_step: int = 1,
+    fitness_depth_max_m: float = float("inf"),
 ) -> IcpResult:
     """Align ``source`` to ``target`` (see the module docstring); ``iterations`` per level,
     coarse to fine. Correspondence distance and Huber delta of the geometric term grow by
@@ -231,7 +232,8 @@ def joint_align(
     used when both images carry intensity and ``photometric_weight`` > 0; ``finest_step`` > 1
     subsamples the source pixels at the finest level. Returns ``T_target_source``, fitness
     (fraction of source points with a geometric correspondence, finest level) and the
-    geometric inlier RMSE."""
+    geometric inlier RMSE. The fitness counts source points nearer than ``fitness_depth_max_m``
+    (the depth-only ICP's range, so both fitnesses mean the same)."""
     T = np.asarray(init_T_target_source, float).copy()
     levels = len(iterations)
     use_pho = (
@@ -291,6 +293,7 @@ def joint_align(
             H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
             T = exp_se3(-np.linalg.solve(H, b)) @ T
             if level == 0:
-                fitness = len(rg) / max(len(src.points), 1)
+                in_range = np.count_nonzero(src.points[:, 2] < fitness_depth_max_m)
+                fitness = min(1.0, len(rg) / max(in_range, 1))
                 rmse = float(np.sqrt(np.mean(rg.astype(np.float64) ** 2)))
     return IcpResult(T, fitness, rmse)

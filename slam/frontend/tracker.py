@@ -4,7 +4,9 @@ rescued by ORB + RANSAC against the last keyframes.
 :meth:`Tracker.track` runs a frame through named stages, each a method with its own test:
 
 1. :meth:`~Tracker.predict`: constant-velocity motion over the frame's interval; large motion
-   (or a gap) means the prediction alone is not trusted;
+   (or a gap) means the prediction alone is not trusted; where the frame's depth is blind in
+   one direction (its ``constraint_ratio``: a wall filling the view, a corridor) colour joins
+   depth in every alignment of the frame;
 2. :meth:`~Tracker.seed`: under large motion, a RANSAC pose against the previous frame or a
    recent keyframe replaces the prediction;
 3. :meth:`~Tracker.align`: frame-to-frame ICP from the guess, then frame-to-model ICP against
@@ -42,7 +44,6 @@ from slam.frontend.frame import PreparedFrame, icp_depth_range
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
 from slam.frontend.pointcloud import depth_pyramid
-from slam.frontend.weighted_icp import constraint
 from slam.geometry import (
     exp_se3,
     inv_T,
@@ -100,6 +101,12 @@ class TrackerState:
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
     recent_overlaps: list[float] = field(default_factory=list)  # of the last tracked frames
+
+    @property
+    def velocity_known(self) -> bool:
+        """A step has been tracked since tracking (re)started: before it, the camera's motion
+        is unknown, not zero (a sequence may start mid-pan)."""
+        return len(self.recent_overlaps) > 0
 
     def ransac_candidates(self, n_keyframes: int) -> list[Keyframe]:
         """What RANSAC tries against: the previous frame, then the ``n_keyframes`` most recent
@@ -327,11 +334,15 @@ class Tracker:
     ) -> Attempt:
         """Stage 1: the constant-velocity motion ``T_prev_cur`` over this frame's interval
         (``dt_ratio`` usual intervals, at most :data:`MAX_EXTRAPOLATION`), and whether it is
-        large (or the frame follows a gap): then the prediction alone is not trusted."""
+        large (or the frame follows a gap, or is the first since tracking started: its motion
+        is unknown): then the prediction alone is not trusted. A frame
+        whose depth is blind in one direction (``constraint_ratio`` above
+        ``degenerate_ratio``) is aligned with colour joining depth (where colour is
+        registered)."""
         cfg, st = self.cfg, self.state
         assert st.T_world_prev is not None, "predict needs a previous pose (call reset)"
         velocity = scale_motion(st.velocity, float(np.clip(dt_ratio, 0.0, MAX_EXTRAPOLATION)))
-        large = verify or (
+        large = verify or not st.velocity_known or (
             translation_norm(velocity) > cfg.large_motion_translation_m
             or rotation_angle_deg(velocity) > cfg.large_motion_rotation_deg
         )
@@ -342,6 +353,12 @@ class Tracker:
             prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
         att = Attempt(p, status, st.T_world_prev, velocity, large, verify, dt_ratio)
         att.prev_depth, att.prev_frame = prev, st.prev_frame
+        status.constraint_ratio = round(p.constraint_ratio, 2)
+        blind = p.constraint_ratio > cfg.degenerate_ratio
+        if blind and p.photometric_image(len(cfg.iterations)) is not None:
+            # depth is blind along one direction: colour joins it in every alignment
+            att.photometric = cfg.motion_check_photometric_weight
+            status.photometric = att.photometric > 0
         if st.t_prev is not None and p.timestamp > st.t_prev:
             att.dt_s = p.timestamp - st.t_prev
         return att
@@ -410,12 +427,16 @@ class Tracker:
         cfg = self.cfg
         if not (att.ok and cfg.motion_check_photometric_weight > 0 and att.photometric == 0):
             return
+        if not self.state.velocity_known:  # no motion pattern to break yet
+            return
         assert att.T_world_cam is not None
         predicted = att.T_world_prev @ att.velocity
         bound = cfg.max_acceleration_m_s2 * att.dt_s**2
-        if translation_norm(inv_T(predicted) @ att.T_world_cam) <= bound:
+        departure = translation_norm(inv_T(predicted) @ att.T_world_cam)
+        if departure <= bound:
             return
         if att.frame.photometric_image(len(cfg.iterations)) is None:
+            _warn_unconfirmed(att, departure, bound, "there is no registered colour to check it")
             return
         att.photometric = cfg.motion_check_photometric_weight
         att.tried = []
@@ -425,6 +446,8 @@ class Tracker:
         if score2 >= cfg.min_overlap and icp2.fitness >= cfg.min_fitness:
             att.keep(T2, icp2, score2)
             att.status.photometric = True
+        else:
+            _warn_unconfirmed(att, departure, bound, "aligning with colour failed the checks")
         att.ok = att.passes(cfg)
 
     def verify(self, att: Attempt) -> None:
@@ -437,10 +460,6 @@ class Tracker:
         score = att.overlap
         status.icp_fitness = float(att.icp.fitness)
         status.icp_rmse_m = float(att.icp.inlier_rmse)
-        if att.icp.information is not None:
-            status.constraint_ratio = round(
-                constraint(att.icp.information, att.icp.depth_m).ratio, 2
-            )
         status.overlap = round(score, 4)
         if not att.ok:
             status.reason = (
@@ -516,6 +535,15 @@ def _features_keyframe(
     if feats is None or len(feats) == 0:
         return None
     return Keyframe(p.index, p.timestamp, T_world_cam.copy(), feats)
+
+
+def _warn_unconfirmed(att: Attempt, departure_m: float, bound_m: float, why: str) -> None:
+    log.warning(
+        "frame %d: its step departs %.1f cm from the constant-velocity prediction (a hand-held "
+        "camera: at most %.1f cm in %.3f s) and %s: kept on depth alone (ICP fitness %.2f)",
+        att.frame.index, 100 * departure_m, 100 * bound_m, att.dt_s, why,
+        att.icp.fitness if att.icp is not None else 0.0,
+    )  # fmt: skip
 
 
 def _unverified_reason(

@@ -77,7 +77,7 @@ class SourcePoints:
     def from_depth(depth_m: np.ndarray, K: np.ndarray, noise: DepthNoise) -> SourcePoints:
         """Points with a known normal (from the depth's vertex map)."""
         vertex = vertex_map(depth_m, K)
-        normal = normal_map(vertex)
+        normal = normal_map(vertex, f_px=float(K[0, 0]))
         v, u = np.nonzero(normal[..., 2] != 0)
         pts = vertex[v, u]
         return SourcePoints(pts, noise.sigma(pts[:, 2]), normal[v, u])
@@ -215,3 +215,24 @@ def constraint(H: np.ndarray, depth_m: float) -> Constraint:
         d,
         float(np.linalg.norm(d[3:]) ** 2),
     )
+
+
+def depth_constraint(
+    depth_m: np.ndarray, K: np.ndarray, depth_max_m: float, noise: DepthNoise
+) -> Constraint:
+    """How well a depth image's own geometry constrains a point-to-plane alignment, before any
+    alignment: the information ``sum w J^T J`` of its points nearer than ``depth_max_m`` (with
+    their normals; ``J = [p x n, n]``, ``w = 1 / sigma(z)^2``), as :func:`constraint` sees it
+    (rotations scaled by the points' median depth). At the correct pose the residuals' Jacobian
+    is this one, so a large ratio says which motion depth cannot see: a wall filling the view,
+    a corridor."""
+    d = np.where((depth_m > 0) & (depth_m < depth_max_m), depth_m, np.float32(0.0))
+    vertex = vertex_map(np.asarray(d, np.float32), K)
+    normal = normal_map(vertex, f_px=float(K[0, 0]))
+    ok = np.any(normal != 0, axis=-1)
+    p, n = vertex[ok].astype(np.float64), normal[ok].astype(np.float64)
+    if len(p) < 6:
+        return Constraint(float("inf"), 0.0, np.zeros(6), 0.0)
+    J = np.concatenate([np.cross(p, n), n], axis=1)
+    w = 1.0 / noise.sigma(p[:, 2]).astype(np.float64) ** 2
+    return constraint((J * w[:, None]).T @ J, float(np.median(p[:, 2])))

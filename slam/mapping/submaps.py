@@ -250,6 +250,11 @@ class SubmapMap:
         if overlap and self.active.n_frames >= self.cfg.submap_overlap_frames:
             self._spill(self.submaps[-2])  # the previous submap is complete
 
+    @property
+    def depth_max_m(self) -> float:
+        """Depth beyond this is never fused (``mapping.depth_max_m``)."""
+        return float(self.cfg.depth_max_m)
+
     def raycast(self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray, *args, **kw):
         """Ray-cast the tracking submap from an odometry-frame pose (see TSDFVolume.raycast)."""
         if not self.submaps:

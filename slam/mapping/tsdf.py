@@ -136,9 +136,15 @@ class TSDFVolume:
         extrinsic = _tensor(inv_T(T_world_cam), np.float64)
         trunc = float(self.cfg.trunc_voxels)
         depth_max = float(self.cfg.depth_max_m)
-        blocks = self.vbg.compute_unique_block_coordinates(
-            depth, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
-        )
+        try:
+            blocks = self.vbg.compute_unique_block_coordinates(
+                depth, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
+            )
+        except RuntimeError as exc:  # depth only between the pixels Open3D samples (every 4th)
+            if "No block is touched" not in str(exc):
+                raise
+            log.debug("frame fuses nothing: its depth misses the pixels Open3D samples")
+            return
         if self.has_color and color is not None:
             col = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.uint8)))
             self.vbg.integrate(
@@ -152,6 +158,11 @@ class TSDFVolume:
     def _weight_threshold(self, threshold: float) -> float:
         # early on every voxel has few observations; do not demand more than there can be
         return float(min(threshold, max(self.n_integrated, 1)))
+
+    @property
+    def depth_max_m(self) -> float:
+        """Depth beyond this is never fused (``mapping.depth_max_m``)."""
+        return float(self.cfg.depth_max_m)
 
     def raycast(
         self,

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from slam.frontend.icp import projective_icp, projective_overlap
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
@@ -36,3 +37,53 @@ def test_icp_singular_system_reports_failure(K_vga):
     K[:2] /= 4
     res = projective_icp(empty, empty, K, np.eye(4), [3, 3, 3])
     assert res.fitness == 0.0
+
+
+def test_fitness_and_overlap_count_only_pixels_in_range(room, K_vga):
+    # the same view with most of its pixels pushed beyond the ICP and model range (a hall's far
+    # walls): what is in range still aligns perfectly, and both scores say so
+    K = K_vga.copy()
+    K[:2] /= 2
+    T = look_at([-1.2, -1.0, 1.4], [0.3, 0.4, 0.7])
+    depth = render_depth(room, K, 320, 240, T)
+    far = depth.copy()
+    far[:, 100:] = np.where(far[:, 100:] > 0, far[:, 100:] + 6.0, 0.0)
+    res = projective_icp(far, depth, K, np.eye(4), [4, 4, 4], depth_max_m=4.0)
+    assert res.fitness > 0.9, res.fitness
+    model = np.where(far < 4.0, far, 0.0)  # a model fused up to 4 m holds none of the far part
+    assert projective_overlap(far, model, K, np.eye(4)) < 0.4
+    assert projective_overlap(far, model, K, np.eye(4), source_max_m=4.0) > 0.99
+
+
+def test_overlap_gate_widens_with_the_depth_noise(K_vga):
+    # a wall 6 m away measured 5 cm behind the model: within 3 sigma of a Kinect (6 cm at
+    # 6 m), not within the fixed 3 cm gate; at 1 m the same offset stays outside
+    from slam.frontend.weighted_icp import DepthNoise
+
+    K = K_vga.copy()
+    K[:2] /= 4
+    for z, expected in [(6.0, 1.0), (1.0, 0.0)]:
+        model = np.full((120, 160), z, np.float32)
+        frame = model + np.float32(0.05)
+        assert projective_overlap(frame, model, K, np.eye(4), 0.03) == 0.0
+        noisy = projective_overlap(frame, model, K, np.eye(4), 0.03, noise=DepthNoise())
+        assert noisy == expected
+
+
+def test_agreement_rmse_is_the_point_to_plane_residual_in_metres(K_vga):
+    # a tilted plane measured 4 mm in front of the model along its normal: RMSE 4 mm (the
+    # along-ray difference is larger); Open3D's inlier_rmse is not in metres
+    from slam.frontend.icp import projective_agreement
+
+    K = K_vga.copy()
+    K[:2] /= 2
+    u, v = np.meshgrid(np.arange(320), np.arange(240))
+    xn = (u - K[0, 2]) / K[0, 0]
+    n = np.array([0.6, 0.0, -0.8])  # plane n . x = -1.6: z = 2 / (1 - 0.75 xn)
+    model = (2.0 / (1 - 0.75 * xn)).astype(np.float32)
+    # the same plane moved 4 mm along n, towards the camera: n . x = -1.604
+    frame = (2.005 / (1 - 0.75 * xn)).astype(np.float32)
+    fraction, rmse = projective_agreement(frame, model, K, np.eye(4))
+    assert fraction > 0.95
+    assert rmse == pytest.approx(0.004, abs=3e-4)
+    assert np.isnan(projective_agreement(frame, np.zeros_like(model), K, np.eye(4))[1])

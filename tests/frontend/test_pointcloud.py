@@ -41,6 +41,29 @@ def test_normals_zero_at_holes_and_edges():
     assert np.all(np.linalg.norm(n[20, 15:35], axis=-1) > 0.99)
 
 
+def test_normals_of_a_far_floor_at_a_coarse_level_survive_with_the_focal_length():
+    # a floor 1.5 m below the camera, seen up to 5 m away at 1/8 resolution (80 x 60): its
+    # depth steps up to 45 cm from pixel to pixel, past the fixed 5 cm jump, but it is a
+    # surface at < 75 deg incidence; a real 1 m step at 2 m is still an edge
+    Kc = scale_intrinsics(K, 8)
+    u, v = np.meshgrid(np.arange(80), np.arange(60))
+    yn = (v - Kc[1, 2]) / Kc[1, 1]
+    z = np.where(yn > 1.5 / 5.0, 1.5 / np.maximum(yn, 1e-6), 0.0).astype(np.float32)
+    floor = z > 0
+    vert = backproject(z, Kc)
+    fixed = normal_map(vert)
+    scaled = normal_map(vert, f_px=float(Kc[0, 0]))
+    inner = floor[1:-1, 1:-1] & floor[2:, 1:-1] & floor[:-2, 1:-1]
+    assert np.count_nonzero(np.linalg.norm(fixed[1:-1, 1:-1][inner], axis=-1)) < 0.6 * inner.sum()
+    ok = np.linalg.norm(scaled[1:-1, 1:-1][inner], axis=-1) > 0.99
+    assert ok.mean() > 0.95
+    up = scaled[1:-1, 1:-1][inner][ok]
+    assert np.abs(up[:, 1]).min() > 0.99  # the floor's normal is the camera's y axis
+    step = np.full((60, 80), 2.0, np.float32)
+    step[:, 40:] = 3.0
+    assert np.all(normal_map(backproject(step, Kc), f_px=float(Kc[0, 0]))[5:-5, 39:41] == 0)
+
+
 def test_downsample_ignores_holes():
     d = np.array([[1.0, 0.0], [1.02, 0.0]], np.float32)
     assert abs(downsample_depth(d)[0, 0] - 1.01) < 1e-6

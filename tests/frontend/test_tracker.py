@@ -3,6 +3,8 @@ depth (pose errors against ground truth), the prepared frame, and checkpoints.""
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -89,10 +91,28 @@ def _errors(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 
 
 def _tracker_at(world: World, i: int, **cfg) -> Tracker:
-    """A tracker reset at frame ``i``'s true pose."""
+    """A tracker reset at frame ``i``'s true pose, as if it had tracked a step there at rest
+    (so the motion is known: no motion)."""
     tracker = Tracker(TrackingConfig(**cfg))
     tracker.reset(world.frame(i), world.poses[i])
+    tracker.state.recent_overlaps = [0.9]
     return tracker
+
+
+def test_the_first_frame_after_a_reset_does_not_trust_the_prediction(world, model):
+    # the motion is unknown, not zero (a sequence may start mid-pan): RANSAC seeds it, and no
+    # motion pattern can be broken yet
+    tracker = Tracker(TrackingConfig())
+    tracker.reset(world.frame(9), world.poses[9])
+    assert not tracker.state.velocity_known
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    assert att.large and not att.verify
+    tracker.align(att, model, *tracker.seed(att))
+    tracker.check_motion(att, model)
+    assert att.ok and not att.status.photometric
+    tracker.commit(att)
+    assert tracker.state.velocity_known
+    assert not tracker.predict(tracker.prepare(world.frame(11))).large
 
 
 def _motion(t_m: float, r_deg: float) -> np.ndarray:
@@ -209,7 +229,7 @@ def test_alternatives_recover_from_a_wrong_prediction(world, model):
     assert len(att.tried) >= 2 and att.overlap > 0.6
 
 
-def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(world, model):
+def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(world, model, caplog):
     tracker = _tracker_at(world, 9)
     p = tracker.prepare(world.frame(10))
     att = tracker.predict(p)  # at rest: the prediction is no motion
@@ -233,11 +253,56 @@ def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(worl
     # without registered colour there is nothing to check with
     blind = Tracker(TrackingConfig(), has_color=True, color_registered=False)
     blind.reset(world.frame(9), world.poses[9])
+    blind.state.recent_overlaps = [0.9]
     att = blind.predict(blind.prepare(world.frame(10)))
     att.keep(slid, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
     att.ok = True
-    blind.check_motion(att, model)
+    with caplog.at_level(logging.WARNING, logger="slam.frontend.tracker"):
+        blind.check_motion(att, model)
     assert not att.status.photometric and att.T_world_cam is slid
+    assert "frame 10: its step departs 2.0 cm from the constant-velocity prediction" in caplog.text
+    assert "there is no registered colour to check it" in caplog.text
+
+
+def test_the_near_cut_is_dropped_where_near_depth_alone_is_blind():
+    # the wall scene kind, frame 24: a textured wall ~2 m away fills most of the view, so the
+    # near-fraction rule picks the 2.5 m cut; the near depth is then blind along the wall and
+    # the corner beyond 2.5 m is the only hold: all depth is used
+    cfg_s = SynthConfig.half_resolution(frames=240, seed=0, noise=False, scene="wall")
+    T = make_trajectory(cfg_s).poses[24]
+    color, depth = render_frame(build_scene(cfg_s), T, cfg_s)
+    cfg = TrackingConfig()
+    p = frame_module.PreparedFrame.build(
+        Frame(24, 0.8, color, depth, cfg_s.calibration().K), cfg, None, False
+    )
+    rule = icp_depth_range(p.depth_m, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction)
+    assert rule == cfg.icp_depth_max_m
+    near_only = frame_module.depth_constraint(
+        p.pyramid[1], frame_module.scale_intrinsics(p.K_track, 2), rule, frame_module.DepthNoise()
+    )
+    assert near_only.ratio > cfg.degenerate_ratio
+    assert p.icp_depth_max_m == cfg.depth_max_m
+    assert p.constraint_ratio < cfg.degenerate_ratio
+
+
+def test_a_frame_whose_depth_is_blind_is_aligned_with_colour(world, model):
+    tracker = _tracker_at(world, 9)
+    p = tracker.prepare(world.frame(10))
+    cfg = tracker.cfg
+    assert p.constraint_ratio < cfg.degenerate_ratio  # the room constrains every motion
+    # ... so the depth range is the usual one
+    assert p.icp_depth_max_m == icp_depth_range(
+        p.depth_m, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
+    )
+    att = tracker.predict(p)
+    assert att.photometric == 0 and not att.status.photometric
+    assert att.status.constraint_ratio == round(p.constraint_ratio, 2)
+    p.constraint_ratio = 100.0  # as if a wall filled the view
+    att = tracker.predict(p)
+    assert att.photometric > 0 and att.status.photometric
+    tracker.align(att, model, *tracker.seed(att))
+    dt, dr = _errors(att.T_world_cam, world.poses[10])
+    assert att.ok and dt < 0.003 and dr < 0.2
 
 
 def test_verify_needs_orb_support_after_a_gap(world, model):
@@ -290,7 +355,7 @@ def test_commit_updates_the_state_and_decides_keyframes(world, model):
     np.testing.assert_allclose(T, att.T_world_cam, atol=1e-9)
     np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
     assert st.T_world_prev is T and st.prev_depth is p.depth_m and st.prev_pyramid is p.pyramid
-    assert st.recent_overlaps == [float(att.overlap)]
+    assert st.recent_overlaps == [0.9, float(att.overlap)]
     assert st.prev_features is None  # this frame never needed its features
     # velocity per usual interval: half of the motion over two intervals
     np.testing.assert_allclose(st.velocity, scale_motion(inv_T(T_prev) @ T, 0.5), atol=1e-15)

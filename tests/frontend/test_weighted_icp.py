@@ -12,6 +12,7 @@ from slam.frontend.weighted_icp import (
     DepthNoise,
     SourcePoints,
     constraint,
+    depth_constraint,
     weighted_point_to_plane,
 )
 from slam.frontend.weighted_icp import vertex_map as _vertex_map
@@ -91,3 +92,15 @@ def test_too_few_correspondences_give_none():
     src = SourcePoints.from_depth(np.zeros((H, W), np.float32), K, DepthNoise())
     V = _vertex_map(_render(CORNER, np.eye(4)), K)
     assert weighted_point_to_plane(src, V, normal_map(V), K, np.eye(4), 2, 0.05) is None
+
+
+def test_a_depth_image_says_how_blind_its_geometry_is_before_any_alignment():
+    # the same analysis from the depth alone (the Jacobian at the solution): a wall filling the
+    # view is blind along three directions, a room's corner along none; points beyond the
+    # range do not count
+    noise = DepthNoise()
+    wall = depth_constraint(_render(CORNER[:1], np.eye(4)), K, 4.0, noise)
+    corner = depth_constraint(_render(CORNER, np.eye(4)), K, 4.0, noise)
+    assert wall.ratio > 1e3 and corner.ratio < 15
+    cut = depth_constraint(_render(CORNER, np.eye(4)), K, 0.5, noise)  # nothing within 0.5 m
+    assert cut.ratio == float("inf")
