@@ -79,9 +79,9 @@ def test_agreement_rmse_is_the_point_to_plane_residual_in_metres(K_vga):
     K[:2] /= 2
     u, v = np.meshgrid(np.arange(320), np.arange(240))
     xn = (u - K[0, 2]) / K[0, 0]
-    n = np.array([0.6, 0.0, -0.8])  # plane n . x = -1.6: z = 2 / (1 - 0.75 xn)
+    # the plane 0.8 z - 0.6 x = 1.6 (unit normal (-0.6, 0, 0.8)): z = 2 / (1 - 0.75 xn)
     model = (2.0 / (1 - 0.75 * xn)).astype(np.float32)
-    # the same plane moved 4 mm along n, towards the camera: n . x = -1.604
+    # the same plane 4 mm farther along its normal: 0.8 z - 0.6 x = 1.604
     frame = (2.005 / (1 - 0.75 * xn)).astype(np.float32)
     fraction, rmse = projective_agreement(frame, model, K, np.eye(4))
     assert fraction > 0.95
