@@ -23,8 +23,8 @@ def echo_result(res) -> None:
     typer.echo(f"matched poses      {res.matched_poses} (alignment {res.alignment})")
     typer.echo(f"ATE                {_fmt_stats(res.ate, 'm')}")
     for r in res.rpe:
-        if r.trans is None:
-            typer.echo(f"RPE {r.label:<14} n/a ({r.error})")
+        if r.left_out:
+            typer.echo(f"RPE {r.label:<14} n/a: {r.left_out}")
             continue
         typer.echo(f"RPE {r.label:<14} trans {_fmt_stats(r.trans, 'm')}  ({r.pairs} pairs)")
         typer.echo(f"{'':18} rot   {_fmt_stats(r.rot, 'deg', 3)}")
@@ -64,15 +64,19 @@ def echo_run(ev) -> None:
     for i, r in enumerate(fin.rpe):
 
         def t(res, i=i):
-            x = res.rpe[i].trans
-            return None if x is None else x.rmse
+            x = res.rpe[i]
+            return None if x.left_out or x.trans is None else x.trans.rmse
 
         def rot(res, i=i):
-            x = res.rpe[i].rot
-            return None if x is None else x.rmse
+            x = res.rpe[i]
+            return None if x.left_out or x.rot is None else x.rot.rmse
+
+        def pairs(res, i=i):
+            return res.rpe[i].pairs
 
         rows.append((f"RPE {r.label} trans rmse [m]", val(fin, t, ".4f"), val(odo, t, ".4f")))
         rows.append((f"RPE {r.label} rot rmse [deg]", val(fin, rot, ".3f"), val(odo, rot, ".3f")))
+        rows.append((f"RPE {r.label} pose pairs", val(fin, pairs, "d"), val(odo, pairs, "d")))
     rows.append(
         (
             "drift [%]",
@@ -99,3 +103,19 @@ def echo_run(ev) -> None:
     typer.echo(f"{'':{width}}  {'final':>10}  {'odometry':>10}")
     for name, a, b in rows:
         typer.echo(f"{name:{width}}  {a:>10}  {b:>10}")
+    for note in rpe_notes(ev):
+        typer.echo(note)
+
+
+def rpe_notes(ev) -> list[str]:
+    """Why an RPE row of a run's evaluation is n/a (too few pose pairs, none), one line each."""
+    why: dict[tuple[str, str], list[str]] = {}  # (label, reason) -> the columns
+    for name, res in (("final", ev.final), ("odometry", ev.odometry)):
+        if res is None or (name == "odometry" and res is ev.final):
+            continue
+        for r in res.rpe:
+            if r.left_out:
+                why.setdefault((r.label, r.left_out), []).append(name)
+    return [
+        f"RPE {label} n/a ({', '.join(names)}): {reason}" for (label, reason), names in why.items()
+    ]

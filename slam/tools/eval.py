@@ -17,6 +17,8 @@ Everything numeric is delegated to evo's library so that the values match the ``
 
 * :func:`drift`      final-position error in % of the ground-truth path length (defined there)
 * :func:`evaluate_full` all of the above (any number of RPE deltas) as one :class:`EvalResult`;
+  an RPE delta with fewer than :data:`MIN_RPE_PAIRS` pose pairs is left out with the reason
+  (:attr:`RPEResult.left_out`);
   :func:`evaluate` its flat headline dict; :func:`evaluate_run` both trajectories of a run folder
   (``trajectory.txt`` and ``odometry.txt``) against the sequence's ground truth
 
@@ -36,6 +38,7 @@ from slam.errors import RunFolderError
 from slam.run_folder import ODOMETRY_FILE, RunFolder
 from slam.run_folder.reader import same_trajectory
 from slam.tools.eval_metrics import (
+    MIN_RPE_PAIRS,
     align_trajectory,
     ape_per_pose,
     associate,
@@ -55,12 +58,19 @@ from slam.tools.ground_truth import (
 )
 
 if TYPE_CHECKING:
-    from slam.tools.plots import PlotPlane, plot_plane, plot_trajectories, save_figure
+    from slam.tools.plots import (
+        PlotPlane,
+        plot_plane,
+        plot_trajectories,
+        save_figure,
+        trajectory_plane,
+    )
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
     "GROUND_TRUTH_FILE",
+    "MIN_RPE_PAIRS",
     "DriftResult",
     "EvalResult",
     "RPEResult",
@@ -83,10 +93,11 @@ __all__ = [
     "rpe",
     "save_figure",
     "sequence_ground_truth",
+    "trajectory_plane",
 ]
 
 #: Names of :mod:`slam.tools.plots` re-exported here, imported on first use.
-_PLOTTING = ("PlotPlane", "plot_plane", "plot_trajectories", "save_figure")
+_PLOTTING = ("PlotPlane", "plot_plane", "plot_trajectories", "save_figure", "trajectory_plane")
 
 
 def __getattr__(name: str) -> Any:

@@ -19,12 +19,13 @@ from evo.core.metrics import PoseRelation, Unit
 from evo.core.trajectory import PoseTrajectory3D
 
 from slam.errors import TrajectoryError
-from slam.tools.eval_results import DriftResult, EvalResult, RPEResult, Stats
+from slam.tools.eval_results import MIN_RPE_PAIRS, DriftResult, EvalResult, RPEResult, Stats
 from slam.trajectory import Trajectory, read_tum
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "MIN_RPE_PAIRS",
     "align_trajectory",
     "ape_per_pose",
     "associate",
@@ -108,6 +109,19 @@ def _associate_evo(
     if matched < MIN_MATCHES:
         possible = min(len(gt), len(est))
         gts, ests = gt.timestamps, est.timestamps
+        if possible < MIN_MATCHES:
+            # too few poses to begin with: no tolerance helps (e.g. a run of 1 or 2 frames)
+            which = "estimate" if len(est) < MIN_MATCHES else "ground truth"
+            raise TrajectoryError(
+                f"the {which} has only {possible} pose{'s' if possible != 1 else ''} "
+                f"(ground truth {_range(gts)}, estimate {_range(ests)}): ATE, RPE and drift "
+                f"need at least {MIN_MATCHES} associated poses (the alignment fits 3 points); "
+                + (
+                    f"evaluate a run of at least {MIN_MATCHES} tracked frames"
+                    if which == "estimate"
+                    else "give a ground truth with more poses"
+                )
+            )
         overlap = min(gts.max(), ests.max()) - max(gts.min(), ests.min())
         hint = ""
         if overlap < -max_diff:
@@ -119,7 +133,9 @@ def _associate_evo(
             f"only {matched} of {possible} possible poses could be associated by timestamp "
             f"(need at least {MIN_MATCHES}) with max_diff={max_diff} s: "
             f"ground truth {_range(gts)}, estimate {_range(ests)}.{hint} "
-            f"Try a larger max_diff (CLI option --t-max-diff)."
+            f"Try a larger max_diff (`max_diff=` in Python; on the command line "
+            f"`slam eval` / `slam report` --t-max-diff SECONDS, e.g. `slam eval RUN_DIR "
+            f"--t-max-diff 0.02` for a run)."
         )
     logger.debug(
         "associated %d of %d possible poses (max_diff=%g s)",
@@ -418,6 +434,7 @@ def evaluate_full(
     correct_scale: bool = False,
     rpe_deltas: Sequence[str | float | tuple[float, str]] = ((1, "frames"),),
     drift_alignment: str | None = None,
+    min_rpe_pairs: int = MIN_RPE_PAIRS,
 ) -> EvalResult:
     """ATE, RPE for each of ``rpe_deltas`` and drift of ``est`` against ``gt``.
 
@@ -425,8 +442,12 @@ def evaluate_full(
     ``correct_scale``) serve every metric, so the numbers equal :func:`ate`, :func:`rpe` and
     :func:`drift` called separately with the same options. ``rpe_deltas`` entries are anything
     :func:`parse_delta` reads (``"1f"``, ``"1s"``, ``"0.5m"``, ``(1, "frames")``); a delta that
-    yields no pose pair is recorded with its ``error`` instead of raising. ``drift_alignment``
-    ``None`` uses the ATE alignment, else any :func:`drift` alignment (e.g. ``"origin"``).
+    yields no pose pair is recorded with its ``error`` instead of raising. One with fewer than
+    ``min_rpe_pairs`` pairs (:data:`MIN_RPE_PAIRS`) keeps evo's statistics but is *left out*
+    (:attr:`RPEResult.left_out` says why): the headline, ``as_dict`` (the JSON), ``slam eval``
+    and ``slam report`` show its pair count and the reason instead of numbers.
+    ``drift_alignment`` ``None`` uses the ATE alignment, else any :func:`drift` alignment
+    (e.g. ``"origin"``).
     """
     deltas = [parse_delta(d) for d in rpe_deltas]
     if drift_alignment is not None and drift_alignment not in _DRIFT_ALIGNMENTS:
@@ -443,10 +464,12 @@ def evaluate_full(
     for value, unit_name in deltas:
         try:
             t, r, pairs = _rpe_metrics(ref, est_s, value, _parse_unit(unit_name))
-            rpes.append(RPEResult(value, unit_name, pairs, t, r))
+            rp = RPEResult(value, unit_name, pairs, t, r, min_pairs=min_rpe_pairs)
         except TrajectoryError as exc:
-            logger.warning("RPE over %g %s: %s", value, unit_name, exc)
-            rpes.append(RPEResult(value, unit_name, 0, None, None, str(exc)))
+            rp = RPEResult(value, unit_name, 0, None, None, str(exc), min_rpe_pairs)
+        if rp.left_out:
+            logger.info("RPE over %s left out: %s", rp.label, rp.left_out)
+        rpes.append(rp)
     name = _alignment_name(align, correct_scale)
     if drift_alignment is None or drift_alignment == name:
         dr = _drift_evo(ref, est_s, name)
@@ -469,7 +492,7 @@ def evaluate_full(
         "ATE rmse %.4f m, RPE %s, %d poses matched, drift %.2f %%",
         a.rmse,
         "n/a"
-        if first is None or first.trans is None or first.rot is None
+        if first is None or first.left_out or first.trans is None or first.rot is None
         else f"{first.trans.rmse:.4f} m / {first.rot.rmse:.3f} deg",
         result.matched_poses,
         dr.percent,
@@ -487,7 +510,8 @@ def evaluate(
     """All headline numbers in one flat dict.
 
     Keys: ``ate_rmse_m, ate_mean_m, ate_median_m, ate_std_m, ate_max_m`` (as :func:`ate`),
-    ``rpe_trans_rmse_m, rpe_rot_rmse_deg`` (as :func:`rpe` with delta = 1 frame, same alignment),
+    ``rpe_trans_rmse_m, rpe_rot_rmse_deg`` (as :func:`rpe` with delta = 1 frame, same alignment;
+    ``None`` with fewer than :data:`MIN_RPE_PAIRS` pairs, i.e. under 11 matched poses: left out),
     ``matched_poses``, ``path_length_m`` (of the associated ground truth) and ``drift_percent``
     (error of the last associated position after the same alignment / ``path_length_m`` * 100,
     see :func:`drift`; NaN for a zero-length path). :func:`evaluate_full` has the full detail.

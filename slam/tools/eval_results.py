@@ -8,7 +8,13 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DriftResult", "EvalResult", "RPEResult", "Stats", "json_ready"]
+__all__ = ["MIN_RPE_PAIRS", "DriftResult", "EvalResult", "RPEResult", "Stats", "json_ready"]
+
+#: Minimum number of pose pairs for an RPE row to be shown: with fewer, a handful of relative
+#: motions stand for the whole trajectory and one bad pair sets the RMSE (a 1 m delta on a 3 m
+#: path gives 3 pairs), so the row is left out, with the reason, rather than shown as solid as
+#: the others. At 10, no single pair carries more than a tenth of the mean.
+MIN_RPE_PAIRS = 10
 
 
 @dataclass
@@ -29,8 +35,12 @@ class Stats:
 @dataclass
 class RPEResult:
     """RPE over consecutive pose pairs ``delta`` ``unit`` apart (``unit``: frames, seconds or
-    metres). ``trans`` in metres, ``rot`` in degrees; both ``None`` and ``error`` set when no pair
-    could be formed (e.g. a 1 m delta on a 0.5 m trajectory)."""
+    metres), from ``pairs`` pose pairs. ``trans`` in metres, ``rot`` in degrees (evo's
+    statistics); both ``None`` and ``error`` set when no pair could be formed (e.g. a 1 m delta
+    on a 0.5 m trajectory). With fewer than ``min_pairs`` pairs the row is *left out*
+    (:attr:`left_out`): its statistics stay here, as evo computes them, but the JSON
+    (:meth:`as_dict`), the headline, ``slam eval`` and ``slam report`` give the pair count and
+    the reason instead of numbers."""
 
     delta: float
     unit: str
@@ -38,6 +48,21 @@ class RPEResult:
     trans: Stats | None
     rot: Stats | None
     error: str | None = None
+    min_pairs: int = 1
+
+    @property
+    def left_out(self) -> str | None:
+        """Why this row has no numbers to show (no pair at all, or fewer than ``min_pairs``);
+        ``None`` when it has."""
+        if self.trans is None or self.rot is None:
+            return self.error or "no pose pair"
+        if self.pairs < self.min_pairs:
+            return (
+                f"only {self.pairs} pose pair{'' if self.pairs == 1 else 's'} {self.label} "
+                f"apart (at least {self.min_pairs} are needed for a statistic that no single "
+                f"pair dominates): use a smaller delta or a longer trajectory"
+            )
+        return None
 
     @property
     def label(self) -> str:
@@ -48,13 +73,15 @@ class RPEResult:
         return f"{value} {'s' if self.unit == 'seconds' else 'm'}"
 
     def as_dict(self) -> dict[str, Any]:
+        """``trans_m`` / ``rot_deg`` null and ``error`` the reason when the row is left out."""
+        out = self.left_out
         return {
             "delta": self.delta,
             "unit": self.unit,
             "pairs": self.pairs,
-            "trans_m": None if self.trans is None else self.trans.as_dict(),
-            "rot_deg": None if self.rot is None else self.rot.as_dict(),
-            "error": self.error,
+            "trans_m": None if out or self.trans is None else self.trans.as_dict(),
+            "rot_deg": None if out or self.rot is None else self.rot.as_dict(),
+            "error": out,
         }
 
 
@@ -94,8 +121,9 @@ class EvalResult:
     drift: DriftResult
 
     def headline(self) -> dict[str, Any]:
-        """The flat dict of :func:`evaluate` (RPE from the first delta; ``None`` if it failed)."""
-        first = self.rpe[0] if self.rpe else None
+        """The flat dict of :func:`evaluate` (RPE from the first delta; ``None`` if it failed or
+        is left out: too few pairs)."""
+        first = self.rpe[0] if self.rpe and not self.rpe[0].left_out else None
         return {
             "ate_rmse_m": self.ate.rmse,
             "ate_mean_m": self.ate.mean,

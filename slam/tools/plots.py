@@ -1,6 +1,7 @@
 """The project's matplotlib figures (Agg backend, no display), written atomically as PNG:
 trajectories in the plane they extend most in (:func:`plot_trajectories`, used by
-``slam eval --plot`` and ``slam report``), and the report's error-over-time and timing plots."""
+``slam eval --plot`` and ``slam report``, which therefore draw one run in the same plane:
+:func:`trajectory_plane`), and the report's error-over-time and timing plots."""
 
 from __future__ import annotations
 
@@ -21,11 +22,13 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "PlotPlane",
+    "ground_truth_during",
     "plot_error",
     "plot_plane",
     "plot_timing",
     "plot_trajectories",
     "save_figure",
+    "trajectory_plane",
 ]
 
 
@@ -99,6 +102,35 @@ def plot_plane(points: np.ndarray) -> PlotPlane:
     return PlotPlane(e1, e2, _direction_label(e1), _direction_label(e2), name)
 
 
+def ground_truth_during(
+    gt: Trajectory, trajectories: Sequence[Trajectory], tol: float = 0.01
+) -> Trajectory:
+    """The part of the ground truth over the time the trajectories cover (first to last
+    timestamp, ``tol`` s either side): a run of part of a sequence, or motion capture that
+    starts before the camera, would otherwise draw (and choose its plane from) what was not
+    run. The whole ground truth when fewer than 2 of its poses fall in that time."""
+    spans = [(t.timestamps[0], t.timestamps[-1]) for t in trajectories if len(t)]
+    if not spans or len(gt) == 0:
+        return gt
+    t0, t1 = min(a for a, _ in spans), max(b for _, b in spans)
+    t = gt.timestamps
+    keep = (t >= t0 - tol) & (t <= t1 + tol)
+    return Trajectory(t[keep], gt.poses[keep]) if np.count_nonzero(keep) >= 2 else gt
+
+
+def trajectory_plane(
+    gt: Trajectory | None, trajectories: dict[str, Trajectory], tol: float = 0.01
+) -> PlotPlane:
+    """The plane :func:`plot_trajectories` draws in: :func:`plot_plane` of the ground truth
+    during the trajectories (:func:`ground_truth_during`), or without ground truth of all the
+    trajectories' positions. ``slam eval --plot`` and ``slam report`` both draw through it, so
+    they show one run in the same plane."""
+    trajs = [t for t in trajectories.values() if len(t)]
+    if gt is not None and len(gt):
+        return plot_plane(ground_truth_during(gt, trajs, tol).positions)
+    return plot_plane(np.concatenate([t.positions for t in trajs] or [np.zeros((0, 3))]))
+
+
 def save_figure(fig: Any, path_png: str | Path) -> Path:
     """Save a matplotlib ``Figure`` as PNG atomically (temporary file, then rename)."""
     path = Path(path_png)
@@ -122,12 +154,15 @@ def plot_trajectories(
     title: str = "",
     loop_edges: Sequence[tuple[np.ndarray, np.ndarray]] = (),
     loop_label: str = "loop edge",
+    tol: float = 0.01,
 ) -> PlotPlane:
     """Plot of the ground truth and any number of trajectories, saved as a PNG; returns the
     plane shown.
 
-    The plane is the one in which the ground truth (or, without one, all trajectories) extends
-    most (:func:`plot_plane`); the axis labels say which directions it spans. Trajectories are
+    The ground truth is drawn over the time the trajectories cover (:func:`ground_truth_during`,
+    ``tol`` s either side). The plane is the one in which that ground truth (or, without one,
+    all trajectories) extends most (:func:`trajectory_plane`); the axis labels say which
+    directions it spans. Trajectories are
     plotted as given (use :func:`align_trajectory` first to overlay an estimate on the ground
     truth). ``loop_edges`` are pairs of 3D positions joined by a thin, light line (e.g. the two
     camera positions of an accepted loop closure; the more there are, the lighter), all under
@@ -144,12 +179,8 @@ def plot_trajectories(
             "plot_trajectories: nothing to plot (no ground truth, no trajectories)"
         )
     if gt is not None and len(gt):
-        ref_points = gt.positions
-    else:
-        ref_points = np.concatenate(
-            [t.positions for t in trajectories.values() if len(t)] or [np.zeros((0, 3))]
-        )
-    plane = plot_plane(ref_points)
+        gt = ground_truth_during(gt, [t for t in trajectories.values() if len(t)], tol)
+    plane = trajectory_plane(gt, trajectories, tol)
 
     fig = Figure(figsize=(8, 7), dpi=100)
     FigureCanvasAgg(fig)

@@ -41,7 +41,13 @@ from slam.run_folder import (
 from slam.run_folder.reader import same_trajectory
 from slam.run_folder.tracking_csv import columns
 from slam.tools import eval as slam_eval
-from slam.tools.plots import PlotPlane, plot_error, plot_plane, plot_timing, plot_trajectories
+from slam.tools.plots import (
+    PlotPlane,
+    plot_error,
+    plot_timing,
+    plot_trajectories,
+    trajectory_plane,
+)
 from slam.tools.report_md import (
     accuracy_md,
     fmt_value,
@@ -117,16 +123,6 @@ def load_run_folder(run_dir: str | Path | RunFolder) -> RunContents:
     contents.tracking = None if statuses is None else columns(statuses)
     contents.loops = run.loops()
     return contents
-
-
-def _during(gt: Trajectory, traj: Trajectory, tol: float) -> Trajectory:
-    """The ground truth over the time the trajectory covers (a run of part of a sequence, or
-    motion capture that starts before the camera, would otherwise draw what was not run)."""
-    if len(traj) == 0:
-        return gt
-    t = gt.timestamps
-    keep = (t >= traj.timestamps[0] - tol) & (t <= traj.timestamps[-1] + tol)
-    return Trajectory(t[keep], gt.poses[keep]) if np.count_nonzero(keep) >= 2 else gt
 
 
 def _index_at(stamps: np.ndarray, t: float, tol: float) -> int | None:
@@ -208,19 +204,16 @@ def _plots(
         trajs["final"] = final
     edges = loop_edges(final, run.accepted_loops, tol=max(max_diff, 1e-3))
     top = out / TOPVIEW_PNG
-    gt_run = None if gt is None else _during(gt, run.trajectory, max_diff)
-    plane = plot_plane(
-        gt_run.positions
-        if gt_run is not None
-        else np.concatenate([t.positions for t in trajs.values()])
-    )
+    # the plane `slam eval RUN_DIR --plot` draws the run in too (trajectory_plane)
+    plane = trajectory_plane(gt, trajs, max_diff)
     plot_trajectories(
         top,
-        gt_run,
+        gt,
         trajs,
         title=f"{title}: {plane.name}" + ("" if gt is not None else " (no ground truth)"),
         loop_edges=edges,
         loop_label="accepted loop",
+        tol=max_diff,
     )
     plots.append(top)
     if gt is not None:
@@ -268,7 +261,9 @@ def _accuracy_section(
         f"Each trajectory is associated with the ground truth by timestamp (within "
         f"{max_diff:g} s) and aligned to it by its own {align} Umeyama fit over all "
         f"associated positions, as `evo_ape tum GT EST -a{'s' if correct_scale else ''}` "
-        f"does; ATE and RPE are evo's numbers (RPE over consecutive pose pairs). Drift is "
+        f"does; ATE and RPE are evo's numbers (RPE over consecutive pose pairs, their number "
+        f"given; a delta with fewer than {slam_eval.MIN_RPE_PAIRS} pairs is left out, with the "
+        f"reason, as too few to be an average). Drift is "
         f"the distance between the last aligned position and the ground truth, in % of the "
         f'ground-truth path length; "drift from the start" instead aligns only the first '
         f"poses (evo's `--align_origin`), so all error accumulated since the start shows.",

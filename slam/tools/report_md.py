@@ -79,19 +79,35 @@ def accuracy_md(ev: RunEvaluation, origin_drift: dict[str, DriftResult]) -> list
     row("matched poses", lambda r: r.matched_poses, "d")
     for k in ("rmse", "mean", "median", "std", "min", "max"):
         row(f"ATE {k} [m]", lambda r, k=k: getattr(r.ate, k), ".4f")
+    notes: list[str] = []
+    evaluated = [r for r in res if r is not None]
     for i, rp in enumerate(fin.rpe):
-        if rp.trans is None:
-            out.append(f"| RPE {rp.label} | " + " | ".join("n/a" for _ in res) + " |")
+        why: dict[str, list[str]] = {}  # reason -> the columns it applies to
+        for c, r in zip(cols, evaluated):
+            reason = r.rpe[i].left_out
+            if reason:
+                why.setdefault(reason, []).append(c)
+        for reason, where in why.items():
+            who = "" if same else f" ({', '.join(where)})"
+            notes.append(f"- RPE {rp.label}{who} is left out: {reason}")
+        if all(r.rpe[i].left_out for r in evaluated):
+            pairs = " / ".join(str(r.rpe[i].pairs) for r in evaluated)
+            out.append(
+                f"| RPE {rp.label} ({pairs} pose pairs, see below) | "
+                + " | ".join("n/a" for _ in res)
+                + " |"
+            )
             continue
+        row(f"RPE {rp.label} pose pairs", lambda r, i=i: r.rpe[i].pairs, "d")
         for k in ("rmse", "mean", "max"):
             row(
                 f"RPE {rp.label} translation {k} [m]",
-                lambda r, i=i, k=k: None if r.rpe[i].trans is None else getattr(r.rpe[i].trans, k),
+                lambda r, i=i, k=k: None if r.rpe[i].left_out else getattr(r.rpe[i].trans, k),
                 ".4f",
             )
         row(
             f"RPE {rp.label} rotation rmse [deg]",
-            lambda r, i=i: None if r.rpe[i].rot is None else r.rpe[i].rot.rmse,
+            lambda r, i=i: None if r.rpe[i].left_out else r.rpe[i].rot.rmse,
             ".3f",
         )
     row("drift (final position error / path length) [%]", lambda r: r.drift.percent, ".3f")
@@ -108,6 +124,8 @@ def accuracy_md(ev: RunEvaluation, origin_drift: dict[str, DriftResult]) -> list
             + " |"
         )
     row("ground-truth path length [m]", lambda r: r.drift.path_length_m, ".2f")
+    if notes:
+        out += [""] + notes
     return out
 
 

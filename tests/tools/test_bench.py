@@ -91,7 +91,9 @@ def test_local_suite_table(local, suite_dict):
     for r in ok:
         assert r["config"] == "fast" and r["error"] is None
         assert r["frames"] == (5 if r["sequence"] == "7scenes" else 8)
-        assert 0 < r["ate_rmse_m"] < 0.05 and 0 < r["rpe_trans_rmse_m"] < 0.05
+        assert 0 < r["ate_rmse_m"] < 0.05
+        # 8 (or 5) frames: 7 (4) pose pairs 1 frame apart, too few for RPE: left out
+        assert r["rpe_trans_rmse_m"] is None and r["rpe_rot_rmse_deg"] is None
         assert r["ate_rmse_odometry_m"] >= 0 and math.isfinite(r["drift_percent"])
         assert r["fps"] > 0 and r["peak_rss_mb"] > 100 and r["tracking_failures"] == 0
         assert r["loops_accepted"] in (0, None)
@@ -100,6 +102,8 @@ def test_local_suite_table(local, suite_dict):
         assert run_dir == out / "runs" / f"{r['sequence']}__fast"
         ev = evaluate_run(run_dir)
         assert r["ate_rmse_m"] == ev.final.ate.rmse
+        assert r["rpe_trans_rmse_m"] == ev.final.headline()["rpe_trans_rmse_m"]
+        assert ev.final.rpe[0].left_out and ev.final.rpe[0].pairs == r["frames"] - 1
         assert r["drift_percent"] == ev.final.drift.percent
         assert (run_dir / "trajectory.txt").is_file() and (run_dir / "log.txt").is_file()
     # failures are rows with their error; the suite went on
@@ -201,6 +205,9 @@ def test_ray_table_equals_local_table(local, suite_dict, tmp_path, monkeypatch):
         for k in ("frames", "loops_accepted", "tracking_failures"):
             assert got[k] == want[k], k
         for k in set(ACCURACY_COLUMNS) - {"frames", "loops_accepted", "tracking_failures"}:
+            if want[k] is None:  # RPE of these short runs: too few pairs, left out in both
+                assert got[k] is None, (got["sequence"], k)
+                continue
             assert got[k] == pytest.approx(want[k], rel=0.05, abs=RUN_TO_RUN[k]), (
                 got["sequence"],
                 k,

@@ -750,7 +750,10 @@ def test_cli_eval_run_dir(tmp_path):
     assert out["odometry"]["ate_rmse_m"] == ev.odometry.ate.rmse
     assert out["final"]["ate"]["median"] == ev.final.ate.median
     assert [r["unit"] for r in out["final"]["rpe"]] == ["frames", "seconds", "metres"]
-    assert out["odometry"]["rpe"][2]["trans_m"]["rmse"] == ev.odometry.rpe[2].trans.rmse
+    assert out["odometry"]["rpe"][0]["trans_m"]["rmse"] == ev.odometry.rpe[0].trans.rmse
+    # 1 s / 1 m apart: 9 / 7 pairs in these 10 s, too few: left out with the count and reason
+    assert [r["pairs"] for r in out["odometry"]["rpe"]] == [r.pairs for r in ev.odometry.rpe]
+    assert out["odometry"]["rpe"][2]["trans_m"] is None and out["odometry"]["rpe"][2]["error"]
     assert out["final"]["drift"]["percent"] == ev.final.drift.percent
     assert out["loops_accepted"] == 3 and out["odometry_identical"] is False
     assert (tmp_path / "p.png").stat().st_size > 1000
@@ -769,13 +772,15 @@ def test_cli_eval_run_dir(tmp_path):
 
 def test_cli_eval_files_json_has_detail(files):
     runner, app = _cli()
-    res = runner.invoke(app, ["eval", str(files[0]), str(files[1]), "--json"])
+    # 6 s of trajectory: 1 s / 1 m deltas would have too few pairs (left out)
+    deltas = ["--rpe-delta", "1f", "--rpe-delta", "0.5s", "--rpe-delta", "0.25m"]
+    res = runner.invoke(app, ["eval", str(files[0]), str(files[1]), "--json", *deltas])
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     gt, est = read_tum(files[0]), read_tum(files[1])
     assert {k: out[k] for k in evaluate(gt, est)} == evaluate(gt, est)
-    assert out["rpe"][1]["trans_m"]["rmse"] == rpe(gt, est, 1, "seconds")[0].rmse
-    assert out["rpe"][2]["trans_m"]["rmse"] == rpe(gt, est, 1, "metres")[0].rmse
+    assert out["rpe"][1]["trans_m"]["rmse"] == rpe(gt, est, 0.5, "seconds")[0].rmse
+    assert out["rpe"][2]["trans_m"]["rmse"] == rpe(gt, est, 0.25, "metres")[0].rmse
     res = runner.invoke(app, ["eval", str(files[0]), str(files[1]), "--correct-scale"])
     assert res.exit_code == 0 and "alignment sim3" in res.stdout
     assert f"rmse {ate(gt, est, correct_scale=True).rmse:.4f}" in res.stdout

@@ -167,8 +167,13 @@ def test_full_report(tmp_path):
     origin = slam_eval.drift(read_tum(run.parent / "seq" / "groundtruth.txt"),
                              read_tum(run / "trajectory.txt"), "origin")  # fmt: skip
     assert f"| drift from the start (first poses aligned) [%] | {origin.percent:.3f} |" in md
-    rp = ev.final.rpe[1]
-    assert f"| RPE 1 s translation rmse [m] | {rp.trans.rmse:.4f} |" in md
+    rp, rp_odo = ev.final.rpe[0], ev.odometry.rpe[0]
+    assert f"| RPE 1 frame pose pairs | {rp.pairs} | {rp_odo.pairs} |" in md
+    assert f"| RPE 1 frame translation rmse [m] | {rp.trans.rmse:.4f} |" in md
+    # 1 s apart: only 7 pose pairs in these 8 s, so the row is left out with the reason
+    assert ev.final.rpe[1].left_out and ev.final.rpe[1].pairs == 7
+    assert "| RPE 1 s (7 / 7 pose pairs, see below) | n/a | n/a |" in md
+    assert "- RPE 1 s (final, odometry) is left out: only 7 pose pairs 1 s apart" in md
     # loops: counts, grouped rejection reasons, accepted table
     assert "5 loop candidates verified: **2 accepted**, 3 rejected" in md
     assert "| 7–18 RANSAC inliers < 25 | 2 | 7, 18 |" in md  # values, not templates
