@@ -47,16 +47,39 @@ def frame_indices(sequence: Sequence, cfg: SlamConfig) -> list[int]:
     return idx
 
 
+class ReadTimes:
+    """The reader thread's own work: the time it spent reading (and decoding, undistorting)
+    frames, unreadable ones included, measured in that thread. The frame loop only waits for
+    frames (``stage_ms["load"]``), which is ~0 when reading keeps ahead of tracking."""
+
+    def __init__(self) -> None:
+        self.ms = 0.0
+        self.frames = 0
+
+    def read(self, sequence: Sequence, index: int) -> Frame:
+        t0 = time.perf_counter()
+        try:
+            return sequence[index]
+        finally:
+            self.ms += (time.perf_counter() - t0) * 1e3
+            self.frames += 1
+
+    def ms_per_frame(self) -> float | None:
+        return round(self.ms / self.frames, 3) if self.frames else None
+
+
 def _prefetch(
-    sequence: Sequence, indices: list[int], ahead: int = 2
+    sequence: Sequence, indices: list[int], ahead: int = 2, times: ReadTimes | None = None
 ) -> Iterator[tuple[int, Future]]:
     """(index, future frame) in order, reading up to ``ahead`` frames in a background thread
-    (image decoding releases the GIL, so it overlaps with tracking)."""
+    (image decoding releases the GIL, so it overlaps with tracking); ``times`` gets the
+    thread's read time per frame."""
+    read = (times or ReadTimes()).read
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam-read") as pool:
         pending: deque[tuple[int, Future]] = deque()
         todo = iter(indices)
         for i in todo:
-            pending.append((i, pool.submit(sequence.__getitem__, i)))
+            pending.append((i, pool.submit(read, sequence, i)))
             if len(pending) > ahead:
                 yield pending.popleft()
         while pending:
@@ -218,12 +241,17 @@ def run(
         check_sequence(sequence, indices)
     checkpoints = Checkpoints(run_dir, checkpoint_every)
     total = len(indices)
+    reads = ReadTimes()
     with StopOnSignal() as stop:
-        for done, (i, future) in enumerate(_prefetch(sequence, indices[start:]), start + 1):
+        for done, (i, future) in enumerate(
+            _prefetch(sequence, indices[start:], times=reads), start + 1
+        ):
             t0 = time.perf_counter()
             try:
                 frame = future.result()
             except FrameReadError as exc:
+                # the wait for an unreadable frame is the loop's time too (seconds, fps)
+                system.stage_ms["load"] += (time.perf_counter() - t0) * 1e3
                 system.skip(i, sequence.timestamp(i), str(exc))
                 if progress:
                     progress(done, total, None)
@@ -248,6 +276,7 @@ def run(
     if resume:
         m.resumed_at_frame = start
     m.peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+    m.read_ms_per_frame = reads.ms_per_frame()
     m.update(
         evaluate_against_ground_truth(
             sequence, result.trajectory, result.odometry, result.pose_graph

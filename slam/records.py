@@ -118,6 +118,7 @@ class FrameLog:
 _OPTIONAL = frozenset(
     {
         "resumed_at_frame",
+        "read_ms_per_frame",
         "ate_rmse_m",
         "ate_rmse_odometry_m",
         "ate_rmse_pose_graph_m",
@@ -175,6 +176,7 @@ class RunMetrics:
     checkpoint_ms: float = 0.0
     resumed_at_frame: int | None = None
     peak_rss_mb: float | None = None
+    read_ms_per_frame: float | None = None  # the reader thread's time per frame read
     # set when the run folder is written (slam.run_folder.save_run): the software that ran
     slam_version: str | None = None
     git_commit: str | None = None  # null when not run from a git checkout

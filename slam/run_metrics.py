@@ -81,7 +81,8 @@ def run_metrics(
         map_segments=map_components(rec.frames, closer.segment_root, main_root),
         segment_joins=list(closer.joins),
         seconds=round(rec.seconds, 3),
-        fps=round(n / rec.loop_s, 3) if rec.loop_s > 0 else None,
+        # every frame the loop went through (read, or skipped as unreadable) over its time
+        fps=round((n + len(rec.skipped)) / rec.loop_s, 3) if rec.loop_s > 0 else None,
         fps_tracking_fusion=round(n / max((ms["tracking"] + ms["integration"]) / 1e3, 1e-9), 3),
         stage_ms_per_frame={k: round(v / max(n, 1), 3) for k, v in per_frame.items()},
         stage_ms_total={
@@ -99,7 +100,13 @@ def run_metrics(
         optimisations=closer.optimisations,
         ba=ba_summary,
         icp_fitness_mean=round(float(np.mean([s.icp_fitness for s in tracked] or [0])), 4),
-        icp_rmse_mean_m=round(float(np.mean([s.icp_rmse_m for s in tracked] or [0])), 6),
+        icp_rmse_mean_m=_finite_mean([s.icp_rmse_m for s in tracked]),
         mesh_vertices=mesh_vertices,
         map_blocks=map_blocks,
     )
+
+
+def _finite_mean(values: list[float]) -> float:
+    """Mean of the finite values (0 without any), rounded to the micrometre."""
+    finite = [v for v in values if np.isfinite(v)]
+    return round(float(np.mean(finite)), 6) if finite else 0.0
