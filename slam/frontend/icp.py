@@ -203,6 +203,10 @@ def projective_overlap(
     )[0]  # fmt: skip
 
 
+#: Agreeing pixels the residual RMSE of :func:`projective_agreement` is measured on (at most).
+RMSE_SAMPLES = 2048
+
+
 def projective_agreement(
     source_depth_m: np.ndarray,
     target_depth_m: np.ndarray,
@@ -242,7 +246,10 @@ def projective_agreement(
     fraction = float(good.sum()) / len(u)
     if not residuals or not good.any():
         return fraction, float("nan")
-    r = _point_to_plane(target_depth_m, K, p[good], ut[good], vt[good])
+    idx = np.flatnonzero(good)
+    if len(idx) > RMSE_SAMPLES:  # an RMSE needs a sample, not every pixel (~8x cheaper)
+        idx = idx[:: len(idx) // RMSE_SAMPLES]
+    r = _point_to_plane(target_depth_m, K, p[idx], ut[idx], vt[idx])
     return fraction, float(np.sqrt(np.mean(r**2))) if len(r) else float("nan")
 
 

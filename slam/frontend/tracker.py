@@ -102,12 +102,6 @@ class TrackerState:
     keyframes: list[Keyframe] = field(default_factory=list)
     recent_overlaps: list[float] = field(default_factory=list)  # of the last tracked frames
 
-    @property
-    def velocity_known(self) -> bool:
-        """A step has been tracked since tracking (re)started: before it, the camera's motion
-        is unknown, not zero (a sequence may start mid-pan)."""
-        return len(self.recent_overlaps) > 0
-
     def ransac_candidates(self, n_keyframes: int) -> list[Keyframe]:
         """What RANSAC tries against: the previous frame, then the ``n_keyframes`` most recent
         keyframes (newest first)."""
@@ -334,15 +328,14 @@ class Tracker:
     ) -> Attempt:
         """Stage 1: the constant-velocity motion ``T_prev_cur`` over this frame's interval
         (``dt_ratio`` usual intervals, at most :data:`MAX_EXTRAPOLATION`), and whether it is
-        large (or the frame follows a gap, or is the first since tracking started: its motion
-        is unknown): then the prediction alone is not trusted. A frame
+        large (or the frame follows a gap): then the prediction alone is not trusted. A frame
         whose depth is blind in one direction (``constraint_ratio`` above
         ``degenerate_ratio``) is aligned with colour joining depth (where colour is
         registered)."""
         cfg, st = self.cfg, self.state
         assert st.T_world_prev is not None, "predict needs a previous pose (call reset)"
         velocity = scale_motion(st.velocity, float(np.clip(dt_ratio, 0.0, MAX_EXTRAPOLATION)))
-        large = verify or not st.velocity_known or (
+        large = verify or (
             translation_norm(velocity) > cfg.large_motion_translation_m
             or rotation_angle_deg(velocity) > cfg.large_motion_rotation_deg
         )
@@ -426,8 +419,6 @@ class Tracker:
         wall and corridor rows of the scene matrix: see docs/benchmarks.md.)"""
         cfg = self.cfg
         if not (att.ok and cfg.motion_check_photometric_weight > 0 and att.photometric == 0):
-            return
-        if not self.state.velocity_known:  # no motion pattern to break yet
             return
         assert att.T_world_cam is not None
         predicted = att.T_world_prev @ att.velocity
