@@ -87,10 +87,11 @@ def _prefetch(
 
 
 #: With automatic checkpoints (``checkpoint_every=None`` and a run folder), writing them costs
-#: at most this fraction of the run's time: the next one is due once the run has spent
+#: about this fraction of the run's time: the next one is due once the run has spent
 #: 1 / fraction times the last one's cost since it (the first after :data:`FIRST_CHECKPOINT`
-#: frames).
-CHECKPOINT_BUDGET = 0.02
+#: frames). A checkpoint costs a little more than the one before (the state grows), so 1.5%
+#: keeps the total under the 2% promised: 2.00% on tum-fr1-xyz at 2%, 6 checkpoints.
+CHECKPOINT_BUDGET = 0.015
 FIRST_CHECKPOINT = 100
 
 

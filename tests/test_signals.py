@@ -61,10 +61,10 @@ def test_automatic_checkpoints_keep_within_their_budget(monkeypatch):
     monkeypatch.setattr(pipeline.time, "perf_counter", lambda: clock[0])
     s = pipeline.Checkpoints("run", None)
     assert not s.due(pipeline.FIRST_CHECKPOINT - 1, 0) and s.due(pipeline.FIRST_CHECKPOINT, 0)
-    s.written(0.5)  # a checkpoint that took 0.5 s: the next one after 0.5 / 2% = 25 s
-    clock[0] = 24.9
+    s.written(0.3)  # a checkpoint that took 0.3 s: the next one after 0.3 / 1.5% = 20 s
+    clock[0] = 19.9
     assert not s.due(200, 0)
-    clock[0] = 25.0
+    clock[0] = 20.0
     assert s.due(200, 0)
     fixed = pipeline.Checkpoints("run", 20)
     assert fixed.due(40, 0) and not fixed.due(41, 0)
