@@ -170,7 +170,8 @@ class MappingConfig:
     # submaps: each fused in the frame of its anchor keyframe, re-fused under corrected anchors
     submap_keyframes: int = 10  # a new submap every this many keyframes (0: a single map)
     submap_min_frames: int = 60  # ... and at least this many frames
-    submap_overlap_frames: int = 3  # frames fused into both the old and the new submap
+    # frames fused into both the old and the new submap; tracking stays on the old one meanwhile
+    submap_overlap_frames: int = 8
     submap_seed_views: int = 3  # a new submap starts with the old one seen from its last views
     reintegration_stride: int = 10  # re-fuse a submap from every n-th of its frames' viewpoints
     reintegration_downsample: int = 2  # those views are ray-cast at 1/n resolution

@@ -287,10 +287,16 @@ def run(
     return result
 
 
+def _real_time(m: dict[str, Any]) -> str:
+    rtf = m.get("real_time_factor")
+    return "" if rtf is None else f" ({rtf:.2f}x real time)"
+
+
 def summary_line(m: dict[str, Any]) -> str:
     """One line: frames, speed, lost and skipped frames, loops, ATE."""
     line = (
-        f"{m['frames']} frames, {m['fps'] or 0:.1f} fps, {len(m['lost_frames'])} lost, "
+        f"{m['frames']} frames, {m['fps'] or 0:.1f} fps{_real_time(m)}, "
+        f"{len(m['lost_frames'])} lost, "
         f"{m['frames_skipped']} skipped, {m['relocalisations']} relocalisations, "
         f"{m['loops_accepted']} loops closed"
     )

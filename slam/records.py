@@ -154,6 +154,7 @@ class RunMetrics:
     seconds: float = 0.0
     fps: float | None = None
     fps_tracking_fusion: float = 0.0
+    real_time_factor: float | None = None  # recording duration over run time (>= 1: real time)
     stage_ms_per_frame: dict[str, float] = field(default_factory=dict)
     stage_ms_total: dict[str, float] = field(default_factory=dict)
     tracking_failures: int = 0

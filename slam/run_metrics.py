@@ -84,6 +84,7 @@ def run_metrics(
         # every frame the loop went through (read, or skipped as unreadable) over its time
         fps=round((n + len(rec.skipped)) / rec.loop_s, 3) if rec.loop_s > 0 else None,
         fps_tracking_fusion=round(n / max((ms["tracking"] + ms["integration"]) / 1e3, 1e-9), 3),
+        real_time_factor=real_time_factor([s.timestamp for s in statuses], rec.loop_s),
         stage_ms_per_frame={k: round(v / max(n, 1), 3) for k, v in per_frame.items()},
         stage_ms_total={
             **{k: round(v, 1) for k, v in ms.items()},
@@ -104,6 +105,17 @@ def run_metrics(
         mesh_vertices=mesh_vertices,
         map_blocks=map_blocks,
     )
+
+
+def real_time_factor(timestamps: list[float], loop_s: float) -> float | None:
+    """How much faster than the sensor the run was: the recording's duration (first to last
+    frame, plus one frame interval) over the frame loop's time; >= 1 keeps up with a live
+    sensor. None without two distinct timestamps or any time."""
+    t = np.unique(np.asarray([x for x in timestamps if np.isfinite(x)], float))
+    if len(t) < 2 or loop_s <= 0:
+        return None
+    duration = (t[-1] - t[0]) * len(t) / (len(t) - 1)
+    return round(float(duration / loop_s), 3)
 
 
 def _finite_mean(values: list[float]) -> float:

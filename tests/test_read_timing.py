@@ -51,6 +51,10 @@ def test_unreadable_frames_count_in_seconds_fps_and_read_time(tiny_seq):
     assert m["seconds"] >= loop_s >= 0.8 * SLEEP_S
     # fps: every frame the loop went through (read or skipped) over the loop's time
     assert m["fps"] == pytest.approx(6 / loop_s, rel=1e-3)
+    # real-time factor: the 5 stepped frames span 4 intervals, 5 with the last frame's own
+    stamps = [s.timestamp for s in res.tracking]
+    duration = (stamps[-1] - stamps[0]) * 5 / 4
+    assert m["real_time_factor"] == pytest.approx(duration / loop_s, rel=2e-2)
     # the reader thread's own time, per frame it read (the unreadable one included)
     assert m["read_ms_per_frame"] is not None
     assert m["read_ms_per_frame"] * 6 >= SLEEP_S * 1e3

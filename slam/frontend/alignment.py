@@ -45,6 +45,9 @@ class Attempt:
     large: bool  # the predicted motion is large, or the frame follows a gap
     verify: bool  # the frame follows a gap: its pose needs ORB support
     dt_ratio: float = 1.0  # the frame's interval over the usual one
+    # the first step since tracking (re)started: its motion is unknown (RANSAC seeds it, but
+    # that alone is no reason for a keyframe)
+    first_step: bool = False
     dt_s: float = 1.0 / 30.0  # seconds since the previous frame (a 30 Hz sensor's when unknown)
     prev_depth: np.ndarray | list[np.ndarray] | None = None
     prev_frame: PreparedFrame | None = None  # the previous frame (its colour, on demand)

@@ -104,7 +104,8 @@ class SubmapMap:
     frame and act on the active submap. A new submap starts seeded with the previous one's
     surface as seen from its last ``submap_seed_views`` viewpoints (ray-cast, then fused), so
     tracking never faces an empty model; the first ``submap_overlap_frames`` frames of a new
-    submap are fused into the previous one too, so neighbouring submaps overlap."""
+    submap are fused into the previous one too, so neighbouring submaps overlap, and tracking
+    ray-casts the previous one meanwhile (:attr:`tracking_submap`)."""
 
     def __init__(
         self, cfg: MappingConfig, has_color: bool = True, spill_dir: str | Path | None = None
@@ -229,6 +230,20 @@ class SubmapMap:
             return True
         return False
 
+    def _in_overlap(self) -> bool:
+        """The active submap is new and its first frames are still fused into the previous one."""
+        return (
+            self.active.overlaps_previous and self.active.n_frames < self.cfg.submap_overlap_frames
+        )
+
+    @property
+    def tracking_submap(self) -> Submap:
+        """The submap tracking ray-casts: the active one, except during a new submap's overlap
+        frames. Then the previous submap holds every frame it had and the new ones too, while
+        the new one holds a coarse seed and a few frames: ICP against so thin a model slid
+        along a corridor (16 mm in the first frame of a new submap)."""
+        return self.submaps[-2] if self._in_overlap() else self.active
+
     # --- the model interface used by tracking and fusion
     def integrate(
         self, depth_m: np.ndarray, color: np.ndarray | None, K: np.ndarray, T_world_cam: np.ndarray
@@ -238,9 +253,7 @@ class SubmapMap:
         if self._K is None:
             self._K, self._size = K.copy(), (depth_m.shape[1], depth_m.shape[0])
         targets = [self.active]
-        overlap = (
-            self.active.overlaps_previous and self.active.n_frames < self.cfg.submap_overlap_frames
-        )
+        overlap = self._in_overlap()
         if overlap:
             targets.append(self.submaps[-2])
         for sm in targets:
@@ -259,7 +272,7 @@ class SubmapMap:
         """Ray-cast the tracking submap from an odometry-frame pose (see TSDFVolume.raycast)."""
         if not self.submaps:
             return Rendering(np.zeros((height, width), np.float32), None, None)
-        sm = self.active
+        sm = self.tracking_submap
         return self.volume(sm).raycast(
             K, width, height, inv_T(sm.T_world_anchor) @ T_world_cam, *args, **kw
         )

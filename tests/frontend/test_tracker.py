@@ -91,10 +91,33 @@ def _errors(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 
 
 def _tracker_at(world: World, i: int, **cfg) -> Tracker:
-    """A tracker reset at frame ``i``'s true pose."""
+    """A tracker reset at frame ``i``'s true pose, as if it had tracked a step there at rest
+    (so the motion is known: no motion)."""
     tracker = Tracker(TrackingConfig(**cfg))
     tracker.reset(world.frame(i), world.poses[i])
+    tracker.state.recent_overlaps = [0.9]
     return tracker
+
+
+def test_the_first_frame_after_a_reset_does_not_trust_the_prediction(world, model):
+    # the motion is unknown, not zero (a sequence may start mid-pan): RANSAC seeds it, and no
+    # motion pattern can be broken yet
+    tracker = Tracker(TrackingConfig())
+    tracker.reset(world.frame(9), world.poses[9])
+    assert not tracker.state.velocity_known
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    assert att.large and not att.verify
+    tracker.align(att, model, *tracker.seed(att))
+    tracker.check_motion(att, model)
+    assert att.ok and not att.status.photometric
+    assert att.first_step and att.status.path == "ransac+icp"
+    n_keyframes = len(tracker.state.keyframes)
+    tracker.commit(att)
+    assert tracker.state.velocity_known
+    # a small first step seeded by RANSAC makes no keyframe: RANSAC was used because the
+    # motion was unknown, not because it was large
+    assert len(tracker.state.keyframes) == n_keyframes and not att.status.keyframe
+    assert not tracker.predict(tracker.prepare(world.frame(11))).large
 
 
 def _motion(t_m: float, r_deg: float) -> np.ndarray:
@@ -235,6 +258,7 @@ def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(worl
     # without registered colour there is nothing to check with
     blind = Tracker(TrackingConfig(), has_color=True, color_registered=False)
     blind.reset(world.frame(9), world.poses[9])
+    blind.state.recent_overlaps = [0.9]
     att = blind.predict(blind.prepare(world.frame(10)))
     att.keep(slid, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
     att.ok = True
@@ -336,7 +360,7 @@ def test_commit_updates_the_state_and_decides_keyframes(world, model):
     np.testing.assert_allclose(T, att.T_world_cam, atol=1e-9)
     np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
     assert st.T_world_prev is T and st.prev_depth is p.depth_m and st.prev_pyramid is p.pyramid
-    assert st.recent_overlaps == [float(att.overlap)]
+    assert st.recent_overlaps == [0.9, float(att.overlap)]
     assert st.prev_features is None  # this frame never needed its features
     # velocity per usual interval: half of the motion over two intervals
     np.testing.assert_allclose(st.velocity, scale_motion(inv_T(T_prev) @ T, 0.5), atol=1e-15)

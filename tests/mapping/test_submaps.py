@@ -116,3 +116,22 @@ def test_refusion_from_few_views_keeps_the_whole_surface():
     near = [tree.search_knn_vector_3d(p, 1)[2][0] < (2 * cfg.voxel_size_m) ** 2 for p in ref[::10]]
     assert np.mean(near) > 0.97, np.mean(near)  # measured 0.996
     assert np.median(_distance_to_sphere(refused)) < 0.5 * cfg.voxel_size_m
+
+
+def test_tracking_renders_the_previous_submap_while_the_new_one_is_thin():
+    """During a new submap's overlap frames (fused into both) tracking ray-casts the previous
+    submap, which holds all it saw; then the new one."""
+    cfg = MappingConfig(submap_keyframes=2, submap_min_frames=4, submap_overlap_frames=3)
+    mesh, center, _ = _sphere()
+    model = SubmapMap(cfg, has_color=False)
+    seen = []
+    for k, ang in enumerate(np.linspace(0, np.pi, 12, endpoint=False)):
+        T = look_at(center + 1.3 * np.array([np.cos(ang), np.sin(ang), 0.3]), center)
+        if k % 4 == 0:
+            model.on_keyframe(k // 4, T)
+        seen.append(model.tracking_submap.id if k else 0)
+        model.integrate(render_depth(mesh, K, 320, 240, T), None, K, T)
+    # a new submap at frame 8 (keyframe 2): frames 9 and 10 track against submap 0
+    assert seen[8:] == [0, 0, 0, 1], seen
+    r = model.raycast(K, 320, 240, T)
+    assert (r.depth_m > 0).mean() > 0.1
