@@ -42,7 +42,7 @@ def main() -> None:
     n = res.metrics["frames"]
     stats = pstats.Stats(prof)
     rows = []
-    for (file, line, name), (cc, nc, tt, ct, _) in stats.stats.items():  # type: ignore[attr-defined]
+    for (file, line, name), (_, nc, tt, ct, _) in stats.stats.items():  # type: ignore[attr-defined]
         rows.append(
             {
                 "function": f"{name} ({file.split('/')[-1]}:{line})",
