@@ -22,37 +22,14 @@ sys.path.insert(0, str(ROOT))
 from slam.config import MappingConfig  # noqa: E402
 from slam.geometry import exp_se3  # noqa: E402
 from slam.mapping.tsdf import TSDFVolume  # noqa: E402
+from tests.conftest import look_at, render_depth  # noqa: E402  (the tests' exact renderer)
 
 K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
 W, H = 320, 240
 
 
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Camera-to-world pose at ``eye`` looking at ``target`` (y down, z forward)."""
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(np.array([0.0, 0.0, 1.0]), z)
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = eye
-    return T
-
-
-def render_depth(scene: o3d.t.geometry.RaycastingScene, T_world_cam: np.ndarray) -> np.ndarray:
-    """Exact z-depth (0: no surface): rays whose camera-frame direction has z = 1."""
-    u, v = np.meshgrid(np.arange(W), np.arange(H))
-    d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], -1)
-    d_world = d_cam @ T_world_cam[:3, :3].T
-    origins = np.broadcast_to(T_world_cam[:3, 3], d_world.shape)
-    rays = np.concatenate([origins, d_world], -1).astype(np.float32)
-    t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-    return np.where(np.isfinite(t), t, 0.0).astype(np.float32)
-
-
 def main() -> None:
     box = o3d.geometry.TriangleMesh.create_box(4, 3, 2.5).translate([-2, -1.5, -1.25])
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(box))
     poses = [
         look_at(
             np.array([0.3 * np.cos(a), 0.2 * np.sin(a), 0.1]),
@@ -60,7 +37,7 @@ def main() -> None:
         )
         for a in np.linspace(0, 1.0, 12)
     ]
-    depths = [render_depth(scene, T) for T in poses]
+    depths = [render_depth(box, K, W, H, T) for T in poses]
     rng = np.random.default_rng(0)
     rows = []
     for trial in range(6):

@@ -342,21 +342,19 @@ class Tracker:
         cfg, st = self.cfg, self.state
         assert st.T_world_prev is not None, "predict needs a previous pose (call reset)"
         velocity = scale_motion(st.velocity, float(np.clip(dt_ratio, 0.0, MAX_EXTRAPOLATION)))
+        first_step = not st.velocity_known
         large = (
             verify
-            or not st.velocity_known
-            or (
-                translation_norm(velocity) > cfg.large_motion_translation_m
-                or rotation_angle_deg(velocity) > cfg.large_motion_rotation_deg
-            )
+            or first_step
+            or translation_norm(velocity) > cfg.large_motion_translation_m
+            or rotation_angle_deg(velocity) > cfg.large_motion_rotation_deg
         )
         status = TrackingStatus(p.index, "icp", False, p.timestamp, gap=verify)
         status.segment = segment
         prev: np.ndarray | list[np.ndarray] | None = None  # what frame-to-frame ICP aligns to
         if st.prev_depth is not None:
             prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
-        att = Attempt(p, status, st.T_world_prev, velocity, large, verify, dt_ratio)
-        att.first_step = not st.velocity_known
+        att = Attempt(p, status, st.T_world_prev, velocity, large, verify, dt_ratio, first_step)
         att.prev_depth, att.prev_frame = prev, st.prev_frame
         status.constraint_ratio = round(p.constraint_ratio, 2)
         blind = p.constraint_ratio > cfg.degenerate_ratio
