@@ -18,11 +18,12 @@ import open3d.core as o3c
 
 from slam.config import MappingConfig
 from slam.geometry import inv_T
+from slam.mapping.range_map import RangeMapBuffer, fragments_bound
 
 log = logging.getLogger(__name__)
 _CPU = o3c.Device("CPU:0")
 _DEPTH_SCALE = 5000.0  # depth images handed to Open3D's integration: uint16, 0.2 mm units
-# Open3D reports range-map reallocations at warning level on every resize; keep them out of logs
+# Open3D warns when a ray-cast's range map overflowed; RangeMapBuffer sees that it never does
 o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
 
 
@@ -107,6 +108,7 @@ class TSDFVolume:
         self.n_integrated = 0
         self.mesh_weight_threshold = cfg.mesh_weight_threshold
         self._last_blocks: o3c.Tensor | None = None
+        self._range_map = RangeMapBuffer()
 
     @property
     def voxel_size(self) -> float:
@@ -205,10 +207,15 @@ class TSDFVolume:
         attrs = ["depth"] + (["normal"] if with_normals else [])
         if with_color and self.has_color:
             attrs.append("color")
+        T_cam_world = inv_T(T_world_cam)
+        down = _range_map_factor(width, height)
+        block_m = self.cfg.voxel_size_m * self.cfg.block_resolution
+        needed = fragments_bound(blocks.numpy(), K, T_cam_world, width, height, down, block_m)
+        self._range_map.ensure(self.vbg, needed)  # else Open3D drops blocks from the range map
         out = self.vbg.ray_cast(
             blocks,
             _tensor(K, np.float64),
-            _tensor(inv_T(T_world_cam), np.float64),
+            _tensor(T_cam_world, np.float64),
             width,
             height,
             attrs,
@@ -217,7 +224,7 @@ class TSDFVolume:
             depth_max,
             self._weight_threshold(self.cfg.raycast_weight_threshold),
             self.cfg.trunc_voxels,
-            _range_map_factor(width, height),
+            down,
         )
         depth = out["depth"].numpy()[..., 0].astype(np.float32)
         bad = ~np.isfinite(depth)

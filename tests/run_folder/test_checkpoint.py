@@ -554,5 +554,7 @@ def test_resume_from_another_directory_gives_the_same_run(interrupted, tmp_path,
     for key in ("frames_tracked", "keyframes", "submaps", "loops_accepted"):
         assert ma[key] == mb[key], key
     diff = np.abs(res_a.trajectory.poses - res_b.trajectory.poses).max()
-    assert diff < 0.002, diff  # Open3D's CPU kernels are not bit-reproducible
+    # ICP's parallel sums are not bit-reproducible: 0.02-0.04 mm measured over 5 resumes (up to
+    # 3 mm before ray-casts kept every block in their range map: see slam/mapping/range_map.py)
+    assert diff < 0.0005, diff
     assert abs(ma["ate_rmse_m"] - mb["ate_rmse_m"]) < 0.001
