@@ -6,9 +6,12 @@ compare; the median of the pairs' ratios does).
     python benchmarks/alternate.py tum-fr1-xyz --a-rev 33bb516 --repeats 3
     # bundle adjustment on (default) against off, same code
     python benchmarks/alternate.py tum-fr1-xyz --a-config ba_off.yaml --repeats 3
+    # the same code with one BLAS thread in arm B's processes
+    python benchmarks/alternate.py tum-fr1-xyz --b-env OPENBLAS_NUM_THREADS=1
 
 Arm A is ``--a-rev`` (a git revision, checked out into a temporary worktree) with ``--a-config``;
-arm B the working tree with ``--b-config``. Writes benchmarks/results/alternate-<name>.json with
+arm B the working tree with ``--b-config``; ``--a-env``/``--b-env`` set variables of one arm's
+processes. Writes benchmarks/results/alternate-<name>.json with
 each run's seconds, fps, fps of tracking + fusion and ATE, and the medians of the B/A ratios.
 Nothing else should run meanwhile.
 """
@@ -35,6 +38,10 @@ def main() -> None:
     parser.add_argument("--a-rev", default=None, help="git revision of arm A (default: this tree)")
     parser.add_argument("--a-config", default="", help="YAML config of arm A")
     parser.add_argument("--b-config", default="", help="YAML config of arm B (this tree)")
+    parser.add_argument("--a-env", action="append", default=[], metavar="KEY=VALUE",
+                        help="environment variable of arm A's processes (repeatable)")
+    parser.add_argument("--b-env", action="append", default=[], metavar="KEY=VALUE",
+                        help="environment variable of arm B's processes (repeatable)")
     parser.add_argument("--repeats", type=int, default=3, help="pairs of runs")
     parser.add_argument("--name", default=None, help="result name (default from the arms)")
     args = parser.parse_args()
@@ -52,12 +59,14 @@ def main() -> None:
             "a": (tree_a, str(Path(args.a_config).resolve()) if args.a_config else ""),
             "b": (ROOT, str(Path(args.b_config).resolve()) if args.b_config else ""),
         }
+        envs = {"a": _env(args.a_env), "b": _env(args.b_env)}
         pairs = []
         try:
             for i in range(args.repeats):
                 order = ["a", "b"] if i % 2 == 0 else ["b", "a"]
                 pair = {
-                    arm: run_in_child(path, arms[arm][1], KEYS, arms[arm][0]) for arm in order
+                    arm: run_in_child(path, arms[arm][1], KEYS, arms[arm][0], envs[arm])
+                    for arm in order
                 }
                 pair["seconds_ratio"] = pair["b"]["seconds"] / pair["a"]["seconds"]
                 pair["fps_tf_ratio"] = (
@@ -79,8 +88,8 @@ def main() -> None:
                 )
     data = {
         "sequence": args.sequence,
-        "a": {"rev": args.a_rev or "working tree", "config": args.a_config},
-        "b": {"rev": "working tree", "config": args.b_config},
+        "a": {"rev": args.a_rev or "working tree", "config": args.a_config, "env": args.a_env},
+        "b": {"rev": "working tree", "config": args.b_config, "env": args.b_env},
         "pairs": pairs,
         "median_seconds_ratio_b_over_a": statistics.median(p["seconds_ratio"] for p in pairs),
         "median_fps_tf_ratio_b_over_a": statistics.median(p["fps_tf_ratio"] for p in pairs),
@@ -93,6 +102,16 @@ def main() -> None:
         f"tracking+fusion fps {data['median_fps_tf_ratio_b_over_a']:.3f} (medians of "
         f"{len(pairs)} pairs)"
     )
+
+
+def _env(pairs: list[str]) -> dict[str, str]:
+    out = {}
+    for kv in pairs:
+        key, sep, value = kv.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"--a-env/--b-env take KEY=VALUE, got {kv!r}")
+        out[key] = value
+    return out
 
 
 if __name__ == "__main__":

@@ -58,12 +58,19 @@ print(json.dumps({k: m.get(k) for k in sys.argv[3].split(",")}))
 
 
 def run_in_child(
-    path: Path, config: str, keys: tuple[str, ...], tree: Path | None = None
+    path: Path,
+    config: str,
+    keys: tuple[str, ...],
+    tree: Path | None = None,
+    extra_env: dict[str, str] | None = None,
 ) -> dict:
     """One pipeline run (default config overridden by the YAML file ``config``, or none) in a
     fresh process, so runs do not share caches or memory; ``tree``: the source tree to import
-    ``slam`` from (default this one). Returns the ``metrics.json`` values named by ``keys``."""
-    env = {**os.environ, "PYTHONPATH": str(tree)} if tree is not None else None
+    ``slam`` from (default this one); ``extra_env``: variables set for that process only.
+    Returns the ``metrics.json`` values named by ``keys``."""
+    env = dict(os.environ, **(extra_env or {}))
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
     out = subprocess.run(
         [sys.executable, "-c", _CHILD, str(path), config, ",".join(keys)],
         check=True,

@@ -252,13 +252,18 @@ class BAConfig:
     match_ratio: float = 0.85  # best over second-best distance among the candidates in reach
     depth_tolerance: float = 0.05  # the predicted depth must agree within 2 cm + this fraction
     # the factor graph: pixel noise of an ORB keypoint of pyramid level 0 (x 1.2 per level),
-    # depth noise at 1 m (grows with depth^2, as a structured-light sensor's disparity noise),
-    # Huber threshold in pixels. The depth
-    # noise is well above a Kinect's nominal ~3 mm: keypoints sit on corners, often on depth
-    # edges, and colour and depth are not captured at the same instant (TUM fr1-xyz keyframe
-    # ATE after BA: 12.1 mm at 0.004, 10.2 mm at 0.02, 10.5 mm at 0.06)
+    # the sensor's depth noise at 1 m (grows with depth^2, as a structured-light sensor's
+    # disparity noise), Huber threshold in pixels. A keypoint's depth is read at its pixel;
+    # where depth changes fast around it (corners, depth edges) the pixel's error (keypoint
+    # localisation, colour-depth calibration and capture-time offset) reads another ray's
+    # depth: its depth noise adds slope (m/px) x depth_misregistration_px (x 1.2 per level),
+    # in quadrature (0: off). One noise for every keypoint had to be 5x the sensor's for fr1's
+    # corners (keyframe ATE 12.1 mm at 0.004, 10.2 mm at 0.02) and then let BA slide along a
+    # textured wall (synthetic wall-x1-s1: final 0.0188 m against odometry 0.0081 m; with the
+    # slope: 0.0059 m; fr1 unchanged; docs/benchmarks.md)
     pixel_sigma_px: float = 1.0
-    depth_sigma_m: float = 0.02
+    depth_sigma_m: float = 0.004
+    depth_misregistration_px: float = 2.0
     huber_px: float = 2.5
     # an observation whose whitened residual stays above this chi^2 (3 dof, 95%: 7.815) after
     # the optimisation is an outlier: removed, and the problem optimised again without it
@@ -390,6 +395,7 @@ class SlamConfig:
             (ba.depth_tolerance >= 0, "ba.depth_tolerance", ba.depth_tolerance, ">= 0"),
             (ba.pixel_sigma_px > 0, "ba.pixel_sigma_px", ba.pixel_sigma_px, "> 0"),
             (ba.depth_sigma_m > 0, "ba.depth_sigma_m", ba.depth_sigma_m, "> 0"),
+            (ba.depth_misregistration_px >= 0, "ba.depth_misregistration_px", ba.depth_misregistration_px, ">= 0"),
             (ba.huber_px > 0, "ba.huber_px", ba.huber_px, "> 0"),
             (ba.outlier_chi2 > 0, "ba.outlier_chi2", ba.outlier_chi2, "> 0"),
             (ba.max_iterations >= 1, "ba.max_iterations", ba.max_iterations, ">= 1"),

@@ -8,6 +8,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 
 from slam.backend.landmarks import LandmarkMap
@@ -36,6 +37,7 @@ class BAProblem:
     uv: np.ndarray
     depth: np.ndarray
     level: np.ndarray | None = None
+    depth_slope: np.ndarray | None = None  # m per pixel around each keypoint (None: flat)
 
     def __len__(self) -> int:
         return len(self.kf)
@@ -55,16 +57,20 @@ class BAProblem:
         uv = np.zeros((len(kf), 2))
         depth = np.zeros(len(kf))
         level = np.zeros(len(kf), np.int64)
+        slope = np.zeros(len(kf))
         K = np.eye(3)
         for k in np.unique(kf):
             key = kf == k
-            f = landmarks.keyframes[int(k)].features
+            keyframe = landmarks.keyframes[int(k)]
+            f = keyframe.features
             uv[key] = f.pixels[feat[key]]
             depth[key] = f.points_cam[feat[key], 2]
             level[key] = f.levels()[feat[key]]
+            if keyframe.depth_m is not None:
+                slope[key] = depth_slope_at(keyframe.depth_m, landmarks.downsample, uv[key])
         if len(kf):
             K = landmarks.K(landmarks.keyframes[int(kf[0])])
-        return cls(K, kf, feat, compact.astype(np.int64), ids, uv, depth, level)
+        return cls(K, kf, feat, compact.astype(np.int64), ids, uv, depth, level, slope)
 
     def pixel_scale(self) -> np.ndarray:
         """Per observation: its pixel noise in units of ``pixel_sigma_px`` (1 at level 0)."""
@@ -112,7 +118,22 @@ class BAProblem:
             self.uv[keep],
             self.depth[keep],
             None if self.level is None else self.level[keep],
+            None if self.depth_slope is None else self.depth_slope[keep],
         )
+
+
+def depth_slope_at(depth_m: np.ndarray, downsample: int, uv: np.ndarray) -> np.ndarray:
+    """How fast depth changes around full-resolution pixels ``uv`` (N, 2), in metres per
+    full-resolution pixel, from a keyframe's tracking depth (1/``downsample`` resolution): the
+    range of the 3x3 neighbourhood over its width. A missing neighbour (a hole: usually the
+    shadow beside a depth edge) makes the range the pixel's whole depth."""
+    d = np.ascontiguousarray(depth_m, np.float32)
+    kernel = np.ones((3, 3), np.uint8)
+    spread = cv2.dilate(d, kernel) - cv2.erode(d, kernel)
+    h, w = d.shape
+    col = np.clip(np.round(uv[:, 0] / downsample).astype(int), 0, w - 1)
+    row = np.clip(np.round(uv[:, 1] / downsample).astype(int), 0, h - 1)
+    return spread[row, col].astype(float) / (2.0 * downsample)
 
 
 @dataclass

@@ -17,7 +17,10 @@ independent depth term, whatever the virtual baseline. The pixel noise is that o
 keypoint's ORB pyramid level, ``pixel_sigma_px * 1.2**level`` (ORB-SLAM's weighting; the
 keypoint error grows so with the level); with one noise for all, coarse-level keypoints of fast
 pans pulled keyframes off (synthetic ``fastrot-fr1``: final ATE 0.0035 m against its pose
-graph's 0.0017 m; weighted 0.0016 m). Robust: Huber on the whitened residual at ``huber_px``
+graph's 0.0017 m; weighted 0.0016 m). The depth noise is per observation too
+(:func:`depth_sigmas`): the sensor's, plus what a pixel's error reads on the slope of the depth
+around the keypoint (a keypoint on a corner or a depth edge reads a neighbouring ray's depth; on
+a flat poster its depth is as good as the sensor's). Robust: Huber on the whitened residual at ``huber_px``
 pixels (of level 0). The gauge is fixed by a prior on the first keyframe of each connected
 part (or on the keyframes the caller fixes). Levenberg-Marquardt; then observations whose
 residual stays above ``outlier_chi2`` are removed and the problem is optimised again.
@@ -110,6 +113,27 @@ def _noise_cov(fx: float, pixel_sigma: float, depth_sigma: float) -> np.ndarray:
     return np.array([[s2, s2, 0.0], [s2, s2 + sd**2, 0.0], [0.0, 0.0, s2]])
 
 
+#: per-observation depth noises are rounded to powers of this ratio (one GTSAM noise model
+#: per level and step instead of one per observation)
+_DEPTH_SIGMA_STEP = 1.25
+
+
+def depth_sigmas(problem: BAProblem, cfg: BAConfig) -> np.ndarray:
+    """Per observation, its depth noise at 1 m (the factor scales it by z^2): the sensor's
+    ``depth_sigma_m``, and the depth the keypoint's pixel error reaches on the surface around
+    it, ``slope * depth_misregistration_px * 1.2**level`` (a keypoint on a depth edge reads a
+    neighbouring ray's depth; on a flat poster its depth is as good as the sensor's), added in
+    quadrature; rounded to steps of ``_DEPTH_SIGMA_STEP``."""
+    s0 = float(cfg.depth_sigma_m)
+    if problem.depth_slope is None or cfg.depth_misregistration_px <= 0:
+        return np.full(len(problem), s0)
+    z = np.where(problem.depth > 0, problem.depth, 1.0)
+    edge = problem.depth_slope * cfg.depth_misregistration_px * problem.pixel_scale() / z**2
+    sigma = np.sqrt(s0**2 + edge**2)
+    steps = np.round(np.log(sigma / s0) / np.log(_DEPTH_SIGMA_STEP))
+    return s0 * _DEPTH_SIGMA_STEP**steps
+
+
 def residuals(
     problem: BAProblem,
     poses: Mapping[int, np.ndarray],
@@ -118,7 +142,8 @@ def residuals(
     depth_sigma: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per observation: the reprojection error (pixels, 2D norm) and the whitened chi^2 of the
-    factor's residual (3 dof with depth, 2 without). Points behind the camera: inf."""
+    factor's residual (3 dof with depth, 2 without). Points behind the camera: inf.
+    ``depth_sigma``: the depth noise at 1 m, one for all or one per observation."""
     K = problem.K
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     Ts = np.stack([poses[int(k)] for k in problem.kf])
@@ -192,17 +217,11 @@ class _Solver:
         self.calib = gtsam.Cal3_S2Stereo(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2], VIRTUAL_BASELINE_M)
         self.calib_mono = gtsam.Cal3_S2(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2])
         huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / sigma)
-        # one noise model per ORB pyramid level: a keypoint's pixel noise grows with its level
+        # one noise model per ORB pyramid level (a keypoint's pixel noise grows with its level)
+        # and depth noise (:func:`depth_sigmas`), made when first needed
         levels = np.unique(problem.level) if problem.level is not None else np.zeros(1, np.int64)
-        self.stereo_noise = {
-            int(lv): gtsam.noiseModel.Robust.Create(
-                huber,
-                gtsam.noiseModel.Gaussian.Covariance(
-                    _noise_cov(K[0, 0], sigma * SCALE_FACTOR ** int(lv), cfg.depth_sigma_m)
-                ),
-            )
-            for lv in levels
-        }
+        self.huber = huber
+        self.stereo_noise: dict[tuple[int, float], gtsam.noiseModel.Base] = {}
         self.mono_noise = {
             int(lv): gtsam.noiseModel.Robust.Create(
                 huber, gtsam.noiseModel.Isotropic.Sigma(2, sigma * SCALE_FACTOR ** int(lv))
@@ -210,6 +229,16 @@ class _Solver:
             for lv in levels
         }
         self.prior_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
+
+    def _stereo_noise(self, level: int, depth_sigma: float) -> gtsam.noiseModel.Base:
+        key = (level, depth_sigma)
+        if key not in self.stereo_noise:
+            pixel = float(self.cfg.pixel_sigma_px) * SCALE_FACTOR**level
+            cov = _noise_cov(self.K[0, 0], pixel, depth_sigma)
+            self.stereo_noise[key] = gtsam.noiseModel.Robust.Create(
+                self.huber, gtsam.noiseModel.Gaussian.Covariance(cov)
+            )
+        return self.stereo_noise[key]
 
     def variables(self, prob: BAProblem) -> tuple[list[int], set[int]]:
         """The keyframes to optimise and those held by a prior (at least one per part)."""
@@ -235,14 +264,15 @@ class _Solver:
             graph.add(gtsam.PriorFactorPose3(_x(k), gtsam.Pose3(start[k]), self.prior_noise))
         bf = self.K[0, 0] * VIRTUAL_BASELINE_M
         obs_level = prob.level.tolist() if prob.level is not None else [0] * len(prob)
-        for k, lm, (u, v), z, lv in zip(
-            prob.kf.tolist(), prob.landmark.tolist(), prob.uv, prob.depth, obs_level
-        ):
+        obs_depth_sigma = depth_sigmas(prob, self.cfg).tolist()
+        for k, lm, (u, v), z, lv, sd in zip(
+            prob.kf.tolist(), prob.landmark.tolist(), prob.uv, prob.depth, obs_level,
+            obs_depth_sigma,
+        ):  # fmt: skip
             if z > 0:
                 m = gtsam.StereoPoint2(u, u - bf / z, v)
-                graph.add(
-                    gtsam.GenericStereoFactor3D(m, self.stereo_noise[lv], _x(k), _l(lm), self.calib)
-                )
+                noise = self._stereo_noise(lv, sd)
+                graph.add(gtsam.GenericStereoFactor3D(m, noise, _x(k), _l(lm), self.calib))
             else:
                 graph.add(
                     gtsam.GenericProjectionFactorCal3_S2(
@@ -318,10 +348,10 @@ def bundle_adjust(
         problem, cfg, {int(k) for k in (fixed or ())}, edges, edge_weight, loop_kernel_width
     )
     points0 = initial_points(problem, poses)
-    reproj0, _ = residuals(problem, poses, points0, sigma, cfg.depth_sigma_m)
+    reproj0, _ = residuals(problem, poses, points0, sigma, depth_sigmas(problem, cfg))
     prob = problem
     new_poses, pts, iters, err0, err1 = solver.optimise(prob, points0, poses)
-    _, chi2 = residuals(prob, new_poses, pts, sigma, cfg.depth_sigma_m)
+    _, chi2 = residuals(prob, new_poses, pts, sigma, depth_sigmas(prob, cfg))
     thr = np.where(prob.depth > 0, cfg.outlier_chi2, cfg.outlier_chi2 * CHI2_2DOF / CHI2_3DOF)
     outlier = ~(chi2 <= thr)
     inlier_mask = ~outlier
@@ -333,7 +363,7 @@ def bundle_adjust(
         pts_in = pts[np.searchsorted(problem.landmark_ids, prob.landmark_ids)]
         new_poses, pts, it2, _, err1 = solver.optimise(prob, pts_in, new_poses)
         iters += it2
-    reproj1, _ = residuals(prob, new_poses, pts, sigma, cfg.depth_sigma_m)
+    reproj1, _ = residuals(prob, new_poses, pts, sigma, depth_sigmas(prob, cfg))
     changes = [inv_T(np.asarray(poses[k])) @ new_poses[k] for k in new_poses]
     result = BAResult(
         poses=new_poses,

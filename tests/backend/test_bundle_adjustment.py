@@ -243,3 +243,45 @@ def test_pyramid_level_sets_pixel_noise(seed):
     assert rms_w < 0.8 * rms_f, (rms_w, rms_f)
     assert weighted.outliers < 0.05 * len(s.problem), weighted.outliers
     assert flat.outliers > 0.2 * len(s.problem), flat.outliers
+
+
+def test_depth_slope_around_a_keypoint():
+    """A ramp of 1 cm per tracking pixel at downsample 2 is 5 mm per full-resolution pixel; a
+    hole beside a keypoint makes its slope its whole depth over the neighbourhood's width."""
+    from slam.backend.ba_problem import depth_slope_at
+
+    depth = (1.0 + 0.01 * np.arange(40, dtype=np.float32))[None, :].repeat(30, axis=0)
+    depth[10, 21] = 0.0
+    uv = np.array([[20.0, 40.0], [40.0, 20.0]])  # (u, v) full-res: tracking (10, 20), (20, 10)
+    slope = depth_slope_at(depth, 2, uv)
+    assert slope[0] == pytest.approx(0.005, abs=1e-6)
+    assert slope[1] == pytest.approx((1.0 + 0.01 * 21) / 4, rel=1e-5)
+
+
+def test_depth_on_slopes_is_trusted_less():
+    """A fifth of the observations read their depth off a depth edge (5 cm too far at 1 m, as
+    a neighbouring ray's depth would be) and carry the slope they sit on: weighing their depth
+    by it recovers the poses better than trusting every depth alike (measured: 1.25 mm RMS
+    against 1.54 mm; the outlier step catches the worst of the biased ones either way)."""
+    from slam.backend.bundle_adjustment import depth_sigmas
+
+    s = make_problem(**PROBLEM)
+    rng = np.random.default_rng(5)
+    edge = rng.random(len(s.problem)) < 0.2
+    z = s.problem.depth
+    biased = dataclasses.replace(
+        s.problem,
+        depth=np.where(edge & (z > 0), z + 0.05 * z**2, z),
+        depth_slope=np.where(edge, 0.05, 0.0),
+    )
+    cfg = dataclasses.replace(PURE, depth_misregistration_px=2.0)
+    alike = dataclasses.replace(PURE, depth_misregistration_px=0.0)
+    sig = depth_sigmas(biased, cfg)
+    assert np.all(sig[~edge] == PURE.depth_sigma_m) and np.all(sig[edge] > 5 * PURE.depth_sigma_m)
+    assert np.all(depth_sigmas(biased, alike) == PURE.depth_sigma_m)
+    flat = bundle_adjust(biased, s.poses_init, alike)
+    weighted = bundle_adjust(biased, s.poses_init, cfg)
+    t_f, _ = pose_errors(flat.poses, s.poses_true)
+    t_w, _ = pose_errors(weighted.poses, s.poses_true)
+    rms_f, rms_w = np.sqrt(np.mean(t_f**2)), np.sqrt(np.mean(t_w**2))
+    assert rms_w < 0.9 * rms_f, (rms_w, rms_f)
