@@ -89,8 +89,11 @@ def registration_information(
     """Per-correspondence information of a depth-image alignment: Open3D's J^T J of the
     point-to-point residuals (rotation first, perturbation on the left in the target frame),
     divided by the number of correspondences and moved to the right-perturbation of
-    ``T_target_source``. Its shape says which motions the overlap constrains (a single wall
-    leaves in-plane sliding free); callers scale it by 1/sigma^2. Returns (info, n)."""
+    ``T_target_source``; callers scale it by 1/sigma^2. Returns (info, n). Point-to-point:
+    its translation block is the identity, so it says every translation is measured even
+    where the overlap is one plane (a wall, a desk top) along which ICP can slide; only the
+    rotation block has the overlap's shape. A point-to-plane information was measured on the
+    scene matrix (docs/benchmarks.md, session 10) and is not used yet."""
     info = o3d.t.pipelines.odometry.compute_odometry_information_matrix(
         o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(source_depth_m, np.float32))),
         o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(target_depth_m, np.float32))),
