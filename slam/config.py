@@ -198,6 +198,11 @@ class LoopConfig:
     overlap_threshold_m: float = 0.03
     max_icp_correction_m: float = 0.15  # ICP moving the RANSAC pose more is a failure
     max_icp_correction_deg: float = 10.0
+    # where colour is registered, ICP's pose must keep this fraction of RANSAC's inliers within
+    # feature_agreement_scatter times their RMS residual at RANSAC's pose (depth and features
+    # agree); where they do not, ICP slid along what depth cannot see
+    min_feature_agreement: float = 0.5
+    feature_agreement_scatter: float = 3.0
     # ICP between two keyframes' depth images (verification, relocalisation): correspondences
     # farther apart are rejected, residuals past huber_delta weigh less (keyframes are farther
     # apart than consecutive frames, so wider than tracking's)
@@ -377,6 +382,8 @@ class SlamConfig:
             (lp.ransac_threshold_m > 0, "loop.ransac_threshold_m", lp.ransac_threshold_m, "> 0"),
             (lp.min_inliers >= 3, "loop.min_inliers", lp.min_inliers, ">= 3"),
             (0 <= lp.min_overlap <= 1, "loop.min_overlap", lp.min_overlap, "in [0, 1]"),
+            (0 <= lp.min_feature_agreement <= 1, "loop.min_feature_agreement", lp.min_feature_agreement, "in [0, 1]"),
+            (lp.feature_agreement_scatter > 0, "loop.feature_agreement_scatter", lp.feature_agreement_scatter, "> 0"),
             (lp.join_verifications >= 1, "loop.join_verifications", lp.join_verifications, ">= 1"),
             (b.odometry_sigma_m > 0, "backend.odometry_sigma_m", b.odometry_sigma_m, "> 0"),
             (b.loop_sigma_m > 0, "backend.loop_sigma_m", b.loop_sigma_m, "> 0"),

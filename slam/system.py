@@ -121,7 +121,9 @@ class Slam:
         self.has_color = has_color
         self.tracker = Tracker(cfg.tracking, has_color, color_registered)
         self.model = SubmapMap(cfg.mapping, has_color, spill_dir)
-        self.closer = LoopCloser(cfg.loop, cfg.backend, cfg.tracking.depth_max_m)
+        self.closer = LoopCloser(
+            cfg.loop, cfg.backend, cfg.tracking.depth_max_m, color_registered and has_color
+        )
         self.ba = BundleAdjuster(
             cfg.ba, cfg.tracking.downsample, has_color, color_registered,
             cfg.backend.loop_kernel_width,

@@ -84,3 +84,11 @@ def test_frame_without_depth_is_lost_not_fatal(frames):
     assert res.metrics["lost_frames"] == [0, 20]
     assert 20 not in res.trajectory.timestamps and len(res.trajectory) == 38
     assert res.metrics["relocalisations"] == 1
+
+
+def test_loop_verification_trusts_features_only_where_colour_is_registered():
+    """A feature's 3D point is where the feature is only where colour and depth are one camera;
+    only then may the features veto ICP's loop pose (7-Scenes: two cameras)."""
+    assert slam.Slam().closer.verifier.features_on_depth
+    assert not slam.Slam(color_registered=False).closer.verifier.features_on_depth
+    assert not slam.Slam(has_color=False).closer.verifier.features_on_depth

@@ -48,6 +48,7 @@ class LoopCloser:
     loop_cfg: LoopConfig
     backend_cfg: BackendConfig
     depth_max_m: float = 4.0
+    color_registered: bool = True  # features' 3D points from registered depth (verification)
     graph: PoseGraph = field(init=False)
     database: KeyframeDatabase = field(init=False)
     keyframes: list[Keyframe] = field(default_factory=list)
@@ -63,7 +64,9 @@ class LoopCloser:
         self.database = KeyframeDatabase(
             self.loop_cfg.vocabulary_words, self.loop_cfg.vocabulary_keyframes
         )
-        self.verifier = LoopVerifier(self.loop_cfg, self.depth_max_m)
+        self.verifier = LoopVerifier(
+            self.loop_cfg, self.depth_max_m, features_on_depth=self.color_registered
+        )
         self.segments = MapSegments(self.loop_cfg)
 
     @property

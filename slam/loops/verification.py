@@ -2,6 +2,10 @@
 
 ORB matches lifted to 3D, the tracking frontend's RANSAC (minimal 3-point Kabsch sets), then
 projective point-to-plane ICP between the two keyframes' depth images from the RANSAC pose.
+Where colour is registered to depth (a feature's 3D point is where the feature is), the two
+must agree: ICP's pose has to keep most of RANSAC's inliers within a few times their own
+scatter. Depth alone slides along a wall filling both views, or settles on a wrong fit between
+views from opposite sides of an object; the features then say it slid.
 A candidate is accepted only when every check passes; the outcome says which one failed.
 Reused by relocalisation (same checks, a keyframe against the current frame).
 """
@@ -110,12 +114,34 @@ def registration_information(
     return A.T @ (info / n) @ A, n
 
 
-class LoopVerifier:
-    """Accepts or rejects revisit candidates (RANSAC on ORB, then ICP on depth)."""
+def feature_agreement(
+    src_pts: np.ndarray, dst_pts: np.ndarray, T_dst_src: np.ndarray, threshold_m: float
+) -> float:
+    """Fraction of 3D feature pairs (rows of ``src_pts`` / ``dst_pts``, camera frames) that
+    ``T_dst_src`` brings within ``threshold_m`` of each other: how many of RANSAC's inliers
+    an alignment found by another sensor (ICP on depth) keeps. 0 for no pairs."""
+    if len(src_pts) == 0:
+        return 0.0
+    moved = src_pts @ T_dst_src[:3, :3].T + T_dst_src[:3, 3]
+    return float(np.mean(np.linalg.norm(moved - dst_pts, axis=1) < threshold_m))
 
-    def __init__(self, cfg: LoopConfig, depth_max_m: float = 4.0, seed: int = 0) -> None:
+
+class LoopVerifier:
+    """Accepts or rejects revisit candidates (RANSAC on ORB, then ICP on depth).
+    ``features_on_depth``: the features' 3D points are read from depth registered to the colour
+    they were detected in, so ICP's pose must agree with them (not so where colour and depth
+    are separate cameras: 7-Scenes)."""
+
+    def __init__(
+        self,
+        cfg: LoopConfig,
+        depth_max_m: float = 4.0,
+        seed: int = 0,
+        features_on_depth: bool = True,
+    ) -> None:
         self.cfg = cfg
         self.depth_max_m = depth_max_m
+        self.features_on_depth = features_on_depth
         self._rng = np.random.default_rng(seed)
 
     def state_dict(self) -> dict:
@@ -170,6 +196,21 @@ class LoopVerifier:
                 f"{cfg.max_icp_correction_deg} deg)"
             )
             return out
+        if self.features_on_depth:
+            gate = cfg.feature_agreement_scatter * rs.inlier_rmse
+            kept = feature_agreement(
+                query.features.points_cam[m[rs.inliers, 0]],
+                candidate.features.points_cam[m[rs.inliers, 1]],
+                T,
+                gate,
+            )
+            if kept < cfg.min_feature_agreement:
+                out.reason = (
+                    f"ICP's pose keeps {kept:.2f} of the RANSAC inliers within {gate * 1e3:.1f} "
+                    f"mm ({cfg.feature_agreement_scatter} x their RMS residual; min "
+                    f"{cfg.min_feature_agreement}): depth and features disagree"
+                )
+                return out
         if icp.fitness < cfg.min_icp_fitness:
             out.reason = f"ICP fitness {icp.fitness:.2f} < {cfg.min_icp_fitness}"
             return out
