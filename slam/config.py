@@ -122,12 +122,18 @@ class TrackingConfig:
     # along its weakest direction than along its strongest (standard deviations, rotations as
     # motion at the scene's depth; slam.frontend.weighted_icp.depth_constraint, on the ICP
     # pyramid's level 1: 160 x 120 for VGA): then the 2.5 m near cut is dropped when all depth
-    # is not blind, else colour joins depth in every alignment of the frame at
-    # motion_check_photometric_weight.
+    # is not blind.
     # Measured on every frame (the range tracking uses): real fr1 <= 15, 7-Scenes <= 23, the
     # cabinet (a large box) <= 30; synthetic rooms and desks <= 20; a wall filling the view up
     # to 160, corridors 48-95, the hall 30-58
     degenerate_ratio: float = 40.0
+    # colour joins depth in every alignment of a frame (at motion_check_photometric_weight,
+    # where colour is registered) whose ICP depth has a ratio above degenerate_ratio, or above
+    # photometric_ratio while the motion is not large (the photometric term's basin is a few
+    # pixels): depth against the model slides along its weak direction by the model's own
+    # sub-millimetre bias times about the ratio (wall rows: 11 mm a frame at ratios 22-27;
+    # benchmarks/self_render_bias.py)
+    photometric_ratio: float = 20.0
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
     # robustness: a frame with less usable depth than this fraction of its pixels is lost
@@ -336,6 +342,7 @@ class SlamConfig:
             (t.max_acceleration_m_s2 > 0, "tracking.max_acceleration_m_s2", t.max_acceleration_m_s2, "> 0"),
             (t.motion_check_photometric_weight >= 0, "tracking.motion_check_photometric_weight", t.motion_check_photometric_weight, ">= 0"),
             (t.degenerate_ratio >= 1, "tracking.degenerate_ratio", t.degenerate_ratio, ">= 1"),
+            (t.photometric_ratio >= 1, "tracking.photometric_ratio", t.photometric_ratio, ">= 1"),
             (t.depth_noise_quadratic >= 0, "tracking.depth_noise_quadratic", t.depth_noise_quadratic, ">= 0"),
             (t.max_correspondence_m > 0, "tracking.max_correspondence_m", t.max_correspondence_m, "> 0"),
             (t.huber_delta_m > 0, "tracking.huber_delta_m", t.huber_delta_m, "> 0"),

@@ -337,8 +337,8 @@ class Tracker:
         large (or the frame follows a gap, or is the first since tracking started: its motion
         is unknown): then the prediction alone is not trusted. A frame
         whose depth is blind in one direction (``constraint_ratio`` above
-        ``degenerate_ratio``) is aligned with colour joining depth (where colour is
-        registered)."""
+        ``degenerate_ratio``), or weak in it (above ``photometric_ratio``) while the motion
+        is not large, is aligned with colour joining depth (where colour is registered)."""
         cfg, st = self.cfg, self.state
         assert st.T_world_prev is not None, "predict needs a previous pose (call reset)"
         velocity = scale_motion(st.velocity, float(np.clip(dt_ratio, 0.0, MAX_EXTRAPOLATION)))
@@ -357,9 +357,13 @@ class Tracker:
         att = Attempt(p, status, st.T_world_prev, velocity, large, verify, dt_ratio, first_step)
         att.prev_depth, att.prev_frame = prev, st.prev_frame
         status.constraint_ratio = round(p.constraint_ratio, 2)
-        blind = p.constraint_ratio > cfg.degenerate_ratio
+        # depth is blind along one direction, or weak along it while the motion is small
+        # enough for the photometric term (not a large, RANSAC-seeded step: on frames 0.66 s
+        # apart colour joining weak depth made the cabinet 0.02 -> 0.11 m): colour joins
+        # depth in every alignment
+        weak = p.constraint_ratio > cfg.photometric_ratio and not large
+        blind = p.constraint_ratio > cfg.degenerate_ratio or weak
         if blind and p.photometric_image(len(cfg.iterations)) is not None:
-            # depth is blind along one direction: colour joins it in every alignment
             att.photometric = cfg.motion_check_photometric_weight
             status.photometric = att.photometric > 0
         if st.t_prev is not None and p.timestamp > st.t_prev:

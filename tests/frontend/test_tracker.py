@@ -294,7 +294,7 @@ def test_a_frame_whose_depth_is_blind_is_aligned_with_colour(world, model):
     tracker = _tracker_at(world, 9)
     p = tracker.prepare(world.frame(10))
     cfg = tracker.cfg
-    assert p.constraint_ratio < cfg.degenerate_ratio  # the room constrains every motion
+    assert p.constraint_ratio < cfg.photometric_ratio  # the room constrains every motion
     # ... so the depth range is the usual one
     assert p.icp_depth_max_m == icp_depth_range(
         p.depth_m, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
@@ -305,6 +305,12 @@ def test_a_frame_whose_depth_is_blind_is_aligned_with_colour(world, model):
     p.constraint_ratio = 100.0  # as if a wall filled the view
     att = tracker.predict(p)
     assert att.photometric > 0 and att.status.photometric
+    # weak, not blind: depth keeps its near cut, yet colour joins it, unless the motion is
+    # large (after a gap, or RANSAC-seeded: beyond the photometric term's basin)
+    p.constraint_ratio = 0.5 * (cfg.photometric_ratio + cfg.degenerate_ratio)
+    assert tracker.predict(p).status.photometric
+    assert not tracker.predict(p, verify=True).status.photometric
+    p.constraint_ratio = 100.0
     tracker.align(att, model, *tracker.seed(att))
     dt, dr = _errors(att.T_world_cam, world.poses[10])
     assert att.ok and dt < 0.003 and dr < 0.2
