@@ -23,7 +23,7 @@ from slam.config import LoopConfig
 from slam.frontend.features import match_descriptors
 from slam.frontend.icp import projective_icp, projective_overlap
 from slam.frontend.ransac import ransac_rigid
-from slam.geometry import inv_T, rotation_angle_deg, translation_norm
+from slam.geometry import inv_T, rotation_angle_deg, transform_points, translation_norm
 from slam.keyframe import Keyframe, KeyframeView
 from slam.records import LoopRecord
 
@@ -122,8 +122,8 @@ def feature_agreement(
     an alignment found by another sensor (ICP on depth) keeps. 0 for no pairs."""
     if len(src_pts) == 0:
         return 0.0
-    moved = src_pts @ T_dst_src[:3, :3].T + T_dst_src[:3, 3]
-    return float(np.mean(np.linalg.norm(moved - dst_pts, axis=1) < threshold_m))
+    d = transform_points(T_dst_src, src_pts) - dst_pts
+    return float(np.mean(np.linalg.norm(d, axis=1) < threshold_m))
 
 
 class LoopVerifier:
