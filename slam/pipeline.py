@@ -68,7 +68,7 @@ class ReadTimes:
         return round(self.ms / self.frames, 3) if self.frames else None
 
 
-def _prefetch(
+def prefetch(
     sequence: Sequence, indices: list[int], ahead: int = 2, times: ReadTimes | None = None
 ) -> Iterator[tuple[int, Future]]:
     """(index, future frame) in order, reading up to ``ahead`` frames in a background thread
@@ -245,7 +245,7 @@ def run(
     reads = ReadTimes()
     with StopOnSignal() as stop:
         for done, (i, future) in enumerate(
-            _prefetch(sequence, indices[start:], times=reads), start + 1
+            prefetch(sequence, indices[start:], times=reads), start + 1
         ):
             t0 = time.perf_counter()
             try:

@@ -175,6 +175,7 @@ class RunMetrics:
     sequence: str | None = None
     checkpoints: int = 0
     checkpoint_ms: float = 0.0
+    workers: int = 1  # worker processes that tracked the sequence (slam run --workers)
     resumed_at_frame: int | None = None
     peak_rss_mb: float | None = None
     read_ms_per_frame: float | None = None  # the reader thread's time per frame read

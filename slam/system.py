@@ -45,7 +45,7 @@ from slam.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
 
-STATE_VERSION = 2
+STATE_VERSION = 3
 
 
 @dataclass
@@ -63,6 +63,22 @@ class FrameResult:
     @property
     def ok(self) -> bool:
         return self.T_world_cam is not None
+
+
+@dataclass
+class TrackedFrame:
+    """A frame tracked by another system (a chunk of a parallel run), in this system's world
+    frame, for :meth:`Slam.replay`: its status, odometry pose (None: lost), tracking run, and
+    when it became a keyframe, the keyframe (ids and segments of this system) and how it joins
+    the graph (``link``, as :class:`~slam.loops.closer.KeyframeLink`), and a relocalisation's
+    record."""
+
+    status: TrackingStatus
+    T_world_cam: np.ndarray | None
+    run: int
+    keyframe: Keyframe | None = None
+    link: KeyframeLink | None = None
+    relocalisation: dict[str, Any] | None = None
 
 
 class FrameClock:
@@ -210,6 +226,26 @@ class Slam:
             closer.adopt_poses(res.poses)  # later loop checks and matching start from BA's poses
             self.graph_adjusted = self.graph_adjusted or bool(res.poses)
 
+    def replay(self, f: TrackedFrame) -> list[LoopRecord]:
+        """Take a frame tracked elsewhere (:class:`TrackedFrame`): a keyframe takes
+        :meth:`step`'s keyframe path (pose graph, loop detection, landmark tracks, bundle
+        adjustment); the frame is logged with its pose but neither tracked nor fused (its
+        submap comes with :meth:`~slam.mapping.submaps.SubmapMap.adopt`)."""
+        t0 = time.perf_counter()
+        loops: list[LoopRecord] = []
+        s = f.status
+        if f.keyframe is not None:
+            self.kf_rows.append(len(self.frames))
+            loops = self.closer.add_keyframe(f.keyframe, f.link)
+            self._bundle_adjust_after(f.keyframe, loops, f.link)
+        if f.T_world_cam is not None:
+            self.frames.append(s.index, s.timestamp, f.T_world_cam, f.run, s.segment)
+        if f.relocalisation is not None:
+            self.recovery.relocalisations.append(f.relocalisation)
+        self.statuses.append(s)
+        self.stage_ms["loop"] += (time.perf_counter() - t0) * 1e3
+        return loops
+
     # --- results
     def finish(self) -> RunResult:
         """The run's result: the final trajectory (every frame follows its keyframes' optimised
@@ -247,7 +283,7 @@ class Slam:
             loop_s, loop_s + time.perf_counter() - t0,
         )  # fmt: skip
         metrics = run_metrics(
-            record, closer, len(self.tracker.state.keyframes), len(self.model.submaps),
+            record, closer, len(closer.keyframes), len(self.model.submaps),
             self.ba.summary(), len(frames) - sum(len(t) for t in others.values()), main_root,
             len(mesh.vertices) if mesh is not None else 0, map_blocks,
         )  # fmt: skip

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
@@ -58,6 +58,9 @@ class LoopCloser:
         default_factory=lambda: {"loop_detection": 0.0, "optimisation": 0.0, "graph": 0.0}
     )
     optimisations: int = 0
+    # every verification's outcome by (query frame, candidate frame), as the verifier gave it:
+    # a replay of the same keyframes (the join of a parallel run) does not verify them again
+    verified: dict[tuple[int, int], Verification] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.graph = PoseGraph(self.backend_cfg)
@@ -164,7 +167,7 @@ class LoopCloser:
         joining = False
         for cand_id, score in candidates:
             cand = self.keyframes[cand_id]
-            ver = self.verifier.verify(kf.view(), cand.view())
+            ver = self._verify(kf, cand)
             across = ver.accepted and not self.same_map(cand, kf)
             if across:
                 ver.accepted = False
@@ -196,6 +199,20 @@ class LoopCloser:
             self.database.add(k_old.id, k_old.features.descriptors)
         self.ms["loop_detection"] += (time.perf_counter() - t0) * 1e3
         return records, accepted, joining
+
+    def _verify(self, kf: Keyframe, cand: Keyframe) -> Verification:
+        """The verifier's outcome for the pair (remembered: see ``verified``); a copy, which
+        the checks that follow may reject."""
+        known = self.verified.get((kf.index, cand.index))
+        if known is None:
+            known = self.verified[(kf.index, cand.index)] = self.verifier.verify(
+                kf.view(), cand.view()
+            )
+        return replace(known)
+
+    def remember(self, other: LoopCloser) -> None:
+        """Take the verifications ``other`` made (a chunk of a parallel run, the same frames)."""
+        self.verified.update(other.verified)
 
     def _join(self, join: Join) -> None:
         """Move segment ``b``'s keyframes rigidly into ``a``'s frame, drop its prior, add the
@@ -278,6 +295,7 @@ class LoopCloser:
             "optimisations": self.optimisations,
             "segments": self.segments.state_dict(),
             "verifier": self.verifier.state_dict(),
+            "verified": [[q, c, asdict(v)] for (q, c), v in self.verified.items()],
         }
 
     def load_state_dict(self, state: dict[str, Any], keyframes: dict[int, Keyframe]) -> None:
@@ -290,6 +308,7 @@ class LoopCloser:
         self.optimisations = state["optimisations"]
         self.segments.load_state_dict(state["segments"], keyframes)
         self.verifier.load_state_dict(state["verifier"])
+        self.verified = {(int(q), int(c)): Verification(**v) for q, c, v in state["verified"]}
 
 
 def odometry_information(

@@ -333,6 +333,32 @@ class SubmapMap:
             return mesh.transform(T)
         return self.rebuild(T_world_anchors, include).extract_mesh()
 
+    # --- maps built elsewhere
+    def adopt(
+        self, other: SubmapMap, anchors: dict[int, int], T_world_other: np.ndarray
+    ) -> list[int]:
+        """Take ``other``'s submaps whose anchor keyframe is in ``anchors`` (its keyframe id ->
+        this map's), their anchors moved into this map's world frame by ``T_world_other``
+        (a chunk of a parallel run joining the global map); the volumes are shared, not copied.
+        Returns the new submaps' ids."""
+        if self._K is None:
+            self._K, self._size = other._K, other._size
+        ids = []
+        for sm in other.submaps:
+            if sm.anchor_kf not in anchors:
+                continue
+            if sm.saving is not None:  # a spill must be complete before its file is shared
+                sm.saving.result()
+                sm.saving = None
+            new = Submap(
+                len(self.submaps), anchors[sm.anchor_kf], T_world_other @ sm.T_world_anchor,
+                sm.volume, list(sm.T_anchor_views), sm.path,
+                overlaps_previous=sm.overlaps_previous,
+            )  # fmt: skip
+            self.submaps.append(new)
+            ids.append(new.id)
+        return ids
+
     # --- checkpoints
     def state_dict(self) -> dict:
         """Everything needed to rebuild this object: submap records, and the blocks of the

@@ -24,6 +24,8 @@ from pathlib import Path
 from slam.errors import RunFolderError
 from slam.run_folder.layout import (
     CHECKPOINT_DIR,
+    CHUNKS_DIR,
+    CHUNKS_FILE,
     CONFIG_FILE,
     ERROR_PNG,
     LOOPS_FILE,
@@ -51,6 +53,8 @@ from slam.run_folder.writer import save_run, write_config
 
 __all__ = [
     "CHECKPOINT_DIR",
+    "CHUNKS_DIR",
+    "CHUNKS_FILE",
     "CONFIG_FILE",
     "ERROR_PNG",
     "LOOPS_FILE",

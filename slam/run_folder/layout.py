@@ -30,6 +30,8 @@ TIMING_PNG = "report_timing.png"
 REPORT_PNG_GLOB = "report_*.png"
 #: ``slam view`` (and the default of ``slam run --rerun``): the rerun recording.
 RECORDING_FILE = "recording.rrd"
+#: ``slam run --workers N``: the chunks, how each joined the one before it, worker times.
+CHUNKS_FILE = "chunks.json"
 #: Map segments never joined to the main one: ``segment_N.txt`` (:func:`segment_file`).
 SEGMENT_PREFIX = "segment_"
 SEGMENT_SUFFIX = ".txt"
@@ -37,6 +39,8 @@ SEGMENT_GLOB = f"{SEGMENT_PREFIX}*{SEGMENT_SUFFIX}"
 #: Working folders of a run in progress (removed once the results are written).
 CHECKPOINT_DIR = "checkpoint"
 SUBMAPS_DIR = "submaps"
+#: ``slam run --workers N``: one folder per chunk (its state and submaps) until the join is done
+CHUNKS_DIR = "chunks"
 #: Held by the process writing the folder (slam.run_folder.lock); not an output.
 LOCK_FILE = ".lock"
 
@@ -53,9 +57,10 @@ RUN_FILES = (
     POSE_GRAPH_FILE,
     REPORT_FILE,
     RECORDING_FILE,
+    CHUNKS_FILE,
 )
 RUN_GLOBS = (REPORT_PNG_GLOB, SEGMENT_GLOB)
-WORK_DIRS = (CHECKPOINT_DIR, SUBMAPS_DIR)
+WORK_DIRS = (CHECKPOINT_DIR, SUBMAPS_DIR, CHUNKS_DIR)
 
 
 def segment_file(segment: int) -> str:

@@ -160,4 +160,5 @@ def test_segments_and_names(tmp_path):
     assert RUN_FILES == (
         "metrics.json", "trajectory.txt", "odometry.txt", "mesh.ply", "config.yaml",
         "tracking.csv", "loops.json", "pose_graph.g2o", "report.md", "recording.rrd",
+        "chunks.json",
     )  # fmt: skip
