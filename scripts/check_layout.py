@@ -42,7 +42,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("loops", ("slam.loops",)),
     ("system", ("slam.system", "slam.results", "slam.run_metrics")),
     ("run folder", ("slam.run_folder",)),
-    ("applications", ("slam.pipeline", "slam.api", "slam.tools", "slam.synthetic", "slam.demo")),
+    ("applications", ("slam.pipeline", "slam.api", "slam.chunked", "slam.tools", "slam.synthetic", "slam.demo")),
     ("cli", ("slam.cli", "slam.cli_eval", "slam.__main__", "slam")),
 ]
 #: pairs in one layer that must not import each other

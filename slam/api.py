@@ -43,6 +43,10 @@ def run_sequence(
     overwrite: bool = False,
     on_frame: FrameCallback | None = None,
     rerun: str | Path | None = None,
+    workers: int = 1,
+    ray_address: str | None = None,
+    executor: str = "auto",
+    worker_threads: int | None = None,
 ) -> tuple[RunResult, Path]:
     """Open a sequence folder (``None``: the built-in synthetic demo), run SLAM, save the run
     folder. Config: ``config`` if given, else defaults overridden by the YAML at ``config_path``.
@@ -56,6 +60,14 @@ def run_sequence(
     the folder), ``metrics.json`` last; the state goes to ``out_dir/checkpoint/``
     every ``checkpoint_every`` frames (None: automatically, at most 2% of the run time; 0:
     never; always on SIGINT/SIGTERM) so :func:`resume_run` can continue after a kill.
+
+    ``workers`` > 1: the sequence is cut into that many overlapping chunks, tracked at once in
+    worker processes (Ray tasks: a local Ray instance, or the cluster at ``ray_address``; local
+    processes where Ray is not installed; ``executor`` forces one; ``worker_threads``: kernel
+    threads per worker, default the cores over the workers) and joined
+    (:mod:`slam.chunked`); a finished chunk is kept, so :func:`resume_run` continues after a
+    kill without redoing it. Per-frame hooks (``progress``, ``on_frame``, ``rerun``) see no
+    frames then: the frames are tracked in other processes.
     """
     cfg = config if config is not None else load_config(config_path)
     if max_frames is not None:
@@ -79,19 +91,19 @@ def run_sequence(
         cfg.dataset.calibration = dict(seq.calibration.to_dict())
         recorder = _recorder(rerun, seq.name)
         write_config(out, cfg)
-        result = _recorded(
-            recorder,
-            lambda hook: run(
-                seq,
-                cfg,
-                progress=progress,
-                run_dir=out,
-                checkpoint_every=checkpoint_every,
-                on_frame=hook,
-            ),
-            on_frame,
-            out,
-        )
+        if workers > 1:
+            from slam.chunked.runner import run_chunked
+
+            def run_fn(hook: FrameCallback | None) -> RunResult:
+                return run_chunked(seq, cfg, out, workers, executor=executor,
+                                   ray_address=ray_address, threads=worker_threads)  # fmt: skip
+        else:
+
+            def run_fn(hook: FrameCallback | None) -> RunResult:
+                return run(seq, cfg, progress=progress, run_dir=out,
+                           checkpoint_every=checkpoint_every, on_frame=hook)  # fmt: skip
+
+        result = _recorded(recorder, run_fn, on_frame, out)
     return result, out
 
 
@@ -127,12 +139,18 @@ def _claimed(out: Path, created: bool) -> Iterator[None]:
             try:
                 yield
             except BaseException:
-                if not has_checkpoint(out):
+                if not (has_checkpoint(out) or _chunked(out)):
                     discard_unfinished(out)
                 raise
     finally:
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()
+
+
+def _chunked(run_dir: Path) -> bool:
+    from slam.chunked.runner import is_chunked
+
+    return is_chunked(run_dir)
 
 
 def _recorder(path: str | Path | None, name: str) -> Any:
@@ -191,6 +209,23 @@ def resume_run(
         return _resume(folder, progress, checkpoint_every, on_frame, rerun)
 
 
+def _resume_chunked(folder: RunFolder, rerun: str | Path | None) -> tuple[RunResult, Path]:
+    """Continue a parallel run: its chunks that finished are kept, the others run again."""
+    from slam.chunked.runner import read_plan, run_chunked
+
+    run_dir = folder.path
+    cfg = load_config(folder.file(CONFIG_FILE))
+    seq = open_sequence(cfg.dataset.path, cfg.dataset.layout, cfg.dataset.calibration)
+    workers = int(read_plan(run_dir)["workers"])
+    result = _recorded(
+        _recorder(rerun, seq.name),
+        lambda hook: run_chunked(seq, cfg, run_dir, workers, resume=True),
+        None,
+        run_dir,
+    )
+    return result, run_dir
+
+
 def _resume(
     folder: RunFolder,
     progress: ProgressCallback | None,
@@ -201,6 +236,8 @@ def _resume(
     run_dir = folder.path
     if folder.complete:
         raise RunFolderError(f"{run_dir}: the run is complete ({METRICS_FILE}); nothing to resume")
+    if _chunked(run_dir):
+        return _resume_chunked(folder, rerun)
     if not has_checkpoint(run_dir):
         raise RunFolderError(
             f"{run_dir}: no checkpoint to resume from ({CHECKPOINT_DIR}/{STATE_FILE}); the run "

@@ -22,6 +22,7 @@ from slam.data.layouts import formats_text
 from slam.errors import RunInterrupted, SlamError
 from slam.run_folder import (
     CHECKPOINT_DIR,
+    CHUNKS_FILE,
     ODOMETRY_FILE,
     RECORDING_FILE,
     REPORT_FILE,
@@ -263,6 +264,24 @@ def run(
             "with `rerun FILE.rrd`).",
         ),
     ] = None,
+    workers: Annotated[
+        int,
+        typer.Option(
+            "--workers",
+            min=1,
+            help="Cut the sequence into N overlapping chunks tracked at once in N worker "
+            "processes (Ray tasks where Ray is installed, else local processes), then join "
+            f"them: one pose graph, loops between chunks, one mesh. Writes {CHUNKS_FILE}.",
+        ),
+    ] = 1,
+    ray: Annotated[
+        Optional[str],
+        typer.Option(
+            "--ray",
+            help="With --workers: run the chunks on the Ray cluster at this address (e.g. "
+            "auto, or ray://host:10001) instead of a local Ray instance.",
+        ),
+    ] = None,
     verbose: Verbose = 0,
     quiet: Quiet = False,
 ) -> None:
@@ -276,6 +295,14 @@ def run(
             "--resume continues a run with its own sequence and config: give no SEQUENCE, "
             "--config or --max-frames with it"
         )
+    if workers > 1 and (rerun is not None or resume is not None):
+        raise SlamError(
+            "--workers tracks frames in other processes: no --rerun recording with it (record "
+            "the finished run with `slam view RUN_DIR`); --resume continues a parallel run "
+            "with its own workers, give no --workers with it"
+        )
+    if ray is not None and workers < 2:
+        raise SlamError("--ray runs chunks of a parallel run: give --workers N (N >= 2) with it")
     if rerun is not None:
         from slam.tools.viewer import check_recording_path
 
@@ -301,6 +328,8 @@ def run(
                 checkpoint_every=checkpoint_every,
                 overwrite=overwrite,
                 rerun=rerun,
+                workers=workers,
+                ray_address=ray,
             )
     finally:
         bar.stop()
