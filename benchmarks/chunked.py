@@ -6,6 +6,7 @@ should run meanwhile).
     python benchmarks/chunked.py tum-fr1-xyz demo --workers 1 2 4
     python benchmarks/chunked.py tum-fr1-xyz --workers 1 2 --repeats 3 --tag speed
     python benchmarks/chunked.py tum-fr1-xyz --workers 2 --threads 2 --tag threads2
+    python benchmarks/chunked.py room-1200 room-2400 --workers 1 4 --tag long   # the join's growth
 
 ``--workers 1`` is the ordinary sequential run. The wall time is the whole command's
 (``python -m slam run``: start-up, tracking, join, writing the run folder). Writes
@@ -60,6 +61,23 @@ def mesh_distance_mm(run_dir: Path, seq: Path) -> float | None:
     return float(np.median(rc.compute_distance(pts).numpy()) * 1e3)
 
 
+def resolve(name: str) -> Path:
+    """``room-N``: a synthetic room at 320x240 whose camera turns N / 300 times in N frames (the
+    demo's motion per frame, revisiting every 300 frames), generated once into the cache;
+    anything else as :func:`common.sequence_path`."""
+    if name.startswith("room-") and name[5:].isdigit():
+        from slam.synthetic import SynthConfig, generate_sequence
+        from slam.synthetic.writer import is_complete
+
+        n = int(name[5:])
+        out = Path.home() / ".cache" / "rgbd-slam" / "chunked" / name
+        if not is_complete(out):
+            cfg = SynthConfig.half_resolution(frames=n, loop=True, seed=3, speed=n / 300)
+            generate_sequence(out, cfg)
+        return out
+    return sequence_path(name)
+
+
 def one_run(seq: Path, workers: int, threads: int, executor: str) -> dict:
     out = Path(tempfile.mkdtemp(prefix="chunked-")) / "run"
     t0 = time.perf_counter()
@@ -72,7 +90,8 @@ def one_run(seq: Path, workers: int, threads: int, executor: str) -> dict:
     row = {
         "workers": workers, "wall_s": round(wall, 2), "seconds": m["seconds"],
         "ate_rmse_m": m.get("ate_rmse_m"), "ate_rmse_odometry_m": m.get("ate_rmse_odometry_m"),
-        "loops_accepted": m["loops_accepted"], "peak_rss_mb": m["peak_rss_mb"],
+        "loops_accepted": m["loops_accepted"], "keyframes": m["keyframes"],
+        "peak_rss_mb": m["peak_rss_mb"],
         "map_segments": len(m["map_segments"]), "mesh_median_mm": mesh_distance_mm(out, seq),
     }  # fmt: skip
     if (out / "chunks.json").is_file():
@@ -101,7 +120,7 @@ def main() -> None:
     a = p.parse_args()
     rows = []
     for name in a.sequences:
-        seq = sequence_path(name)
+        seq = resolve(name)
         for r in range(a.repeats):
             for w in a.workers:
                 row = {"sequence": name, "repeat": r, **one_run(seq, w, a.threads, a.executor)}
