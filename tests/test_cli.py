@@ -168,3 +168,14 @@ def test_demo_generation_is_its_own_step(tmp_path, monkeypatch):
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
     assert "generating" not in res.output
+
+
+def test_parallel_run_options_that_cannot_work_are_clear_errors(tmp_path):
+    seq, out = str(tmp_path / "seq"), str(tmp_path / "run")
+    res = runner.invoke(app, ["run", seq, "--out", out, "--ray", "auto"])
+    assert res.exit_code != 0 and "give --workers N" in res.output
+    res = runner.invoke(app, ["run", seq, "--out", out, "--workers", "2", "--rerun", "x.rrd"])
+    assert res.exit_code != 0 and "no --rerun recording" in res.output
+    res = runner.invoke(app, ["run", seq, "--out", out, "--workers", "0"])
+    assert res.exit_code != 0
+    assert not (tmp_path / "run").exists()
