@@ -13,6 +13,7 @@ from typing import Any
 
 from slam.chunked.worker import run_chunk, set_kernel_threads
 from slam.errors import SlamError
+from slam.tools.ray_session import ray_session
 
 log = logging.getLogger(__name__)
 
@@ -49,35 +50,15 @@ def run_tasks(
 def _run_ray(
     tasks: list[dict[str, Any]], workers: int, address: str | None
 ) -> list[dict[str, Any]]:
-    try:
-        import ray
-    except ImportError as exc:
-        raise SlamError(
-            "--ray needs the Ray package, which is not installed: pip install 'rgbd-slam[ray]', "
-            "or run without --ray (local worker processes)"
-        ) from exc
-    started = not ray.is_initialized()
-    if started:
-        try:
-            if address is None:
-                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-            else:
-                ray.init(address=address, log_to_driver=False)
-        except ConnectionError as exc:
-            raise SlamError(
-                f"no Ray cluster at {address}: start one with `ray start --head`, or run "
-                f"without --ray for a local one ({exc})"
-            ) from exc
-    try:
+    hint = "run without --ray for a local instance"
+    with ray_session(address, workers, hint) as ray:
         # a fresh worker process per chunk (its kernel threads are set before Open3D loads);
         # Ray runs a chunk again when its worker dies
         remote = ray.remote(num_cpus=1, max_calls=1, max_retries=RETRIES)(run_chunk)
-        return list(ray.get([remote.remote(t) for t in tasks]))
-    except ray.exceptions.RayError as exc:
-        raise SlamError(f"a chunk failed on Ray after {RETRIES} retries: {exc}") from exc
-    finally:
-        if started:
-            ray.shutdown()
+        try:
+            return list(ray.get([remote.remote(t) for t in tasks]))
+        except ray.exceptions.RayError as exc:
+            raise SlamError(f"a chunk failed on Ray after {RETRIES} retries: {exc}") from exc
 
 
 def _run_processes(tasks: list[dict[str, Any]], workers: int) -> list[dict[str, Any]]:

@@ -54,6 +54,7 @@ from slam.tools.bench_tables import (
     format_markdown,
     write_tables,
 )
+from slam.tools.ray_session import import_ray, ray_session
 
 logger = logging.getLogger(__name__)
 
@@ -248,40 +249,14 @@ def _run_local(
             on_row(job, row)
 
 
-def _import_ray() -> Any:
-    try:
-        import ray
-    except ImportError as exc:
-        raise SlamError(
-            "--ray needs the Ray package, which is not installed: pip install 'rgbd-slam[ray]' "
-            "(or pip install ray), or run without --ray for local processes"
-        ) from exc
-    return ray
-
-
 def _run_ray(
     jobs: list[BenchJob],
     address: str,
     workers: int,
     on_row: Callable[[BenchJob, dict[str, Any]], None],
 ) -> None:
-    ray = _import_ray()
-    started = False
-    if not ray.is_initialized():
-        if address == "local":
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-        else:
-            try:
-                ray.init(address=address, log_to_driver=False)
-            except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise SlamError(
-                    f"cannot connect to the Ray cluster at {address!r}: {str(exc).rstrip('.')}; "
-                    "start one with `ray start --head`, or use --ray local for a one-off local "
-                    "instance"
-                ) from exc
-        started = True
-    logger.info("Ray: %s", ray.cluster_resources())
-    try:
+    local = None if address == "local" else address
+    with ray_session(local, workers, "use --ray local for a one-off local instance") as ray:
         task = ray.remote(num_cpus=1, max_calls=1)(run_job)  # fresh worker process per run
         refs = {task.remote(job): job for job in jobs}
         pending = list(refs)
@@ -294,9 +269,6 @@ def _run_ray(
                 except Exception as exc:  # the task's worker died
                     row = _failed(job, f"Ray task failed: {type(exc).__name__}: {exc}")
                 on_row(job, row)
-    finally:
-        if started:
-            ray.shutdown()
 
 
 @dataclass
@@ -330,7 +302,7 @@ def run_suite(
     if jobs < 1:
         raise ConfigError(f"jobs must be >= 1, got {jobs}")
     if ray_address is not None:
-        _import_ray()  # fail before any work when Ray is missing
+        import_ray()  # fail before any work when Ray is missing
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     all_jobs = make_jobs(suite, out)
