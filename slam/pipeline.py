@@ -86,6 +86,37 @@ def prefetch(
             yield pending.popleft()
 
 
+def color_registered(sequence: Sequence, cfg: SlamConfig) -> bool:
+    """Whether colour pixels are depth's rays: ``dataset.color_registered``, else as the
+    sequence's layout says."""
+    registered = cfg.dataset.color_registered
+    return sequence.color_registered if registered is None else registered
+
+
+def new_system(sequence: Sequence, cfg: SlamConfig, spill_dir: str | Path | None) -> Slam:
+    """A fresh :class:`Slam` for ``sequence``; finished submaps wait in ``spill_dir``."""
+    return Slam(
+        cfg,
+        has_color=sequence.has_color,
+        spill_dir=None if spill_dir is None else str(spill_dir),
+        color_registered=color_registered(sequence, cfg),
+    )
+
+
+def next_frame(system: Slam, sequence: Sequence, index: int, future: Future) -> Frame | None:
+    """The frame read ahead by :func:`prefetch`; an unreadable one is recorded as skipped
+    (None). The wait counts as the loop's ``load`` time, an unreadable frame's too (seconds,
+    fps)."""
+    t0 = time.perf_counter()
+    try:
+        return future.result()
+    except FrameReadError as exc:
+        system.skip(index, sequence.timestamp(index), str(exc))
+        return None
+    finally:
+        system.stage_ms["load"] += (time.perf_counter() - t0) * 1e3
+
+
 #: With automatic checkpoints (``checkpoint_every=None`` and a run folder), writing them costs
 #: about this fraction of the run's time: the next one is due once the run has spent
 #: 1 / fraction times the last one's cost since it (the first after :data:`FIRST_CHECKPOINT`
@@ -184,7 +215,9 @@ def _interrupted(
         where = f"the state could not be saved in {run_dir} (see the warning above)"
     else:
         where = "nothing was saved (no run folder: pass run_dir to make a run resumable)"
-    return RunInterrupted(f"run interrupted by {name} after frame {done} of {total}: {where}", signum)
+    return RunInterrupted(
+        f"run interrupted by {name} after frame {done} of {total}: {where}", signum
+    )
 
 
 def run(
@@ -215,14 +248,7 @@ def run(
     indices = frame_indices(sequence, cfg)
     if not indices:
         raise SlamError(f"{sequence.path}: no frames to process (check dataset.max_frames/stride)")
-    registered = cfg.dataset.color_registered
-    registered = sequence.color_registered if registered is None else registered
-    system = Slam(
-        cfg,
-        has_color=sequence.has_color,
-        spill_dir=None if run_dir is None else str(submaps_dir(run_dir)),
-        color_registered=registered,
-    )
+    system = new_system(sequence, cfg, None if run_dir is None else submaps_dir(run_dir))
     start = 0
     if resume:
         assert run_dir is not None
@@ -247,17 +273,11 @@ def run(
         for done, (i, future) in enumerate(
             prefetch(sequence, indices[start:], times=reads), start + 1
         ):
-            t0 = time.perf_counter()
-            try:
-                frame = future.result()
-            except FrameReadError as exc:
-                # the wait for an unreadable frame is the loop's time too (seconds, fps)
-                system.stage_ms["load"] += (time.perf_counter() - t0) * 1e3
-                system.skip(i, sequence.timestamp(i), str(exc))
+            frame = next_frame(system, sequence, i, future)
+            if frame is None:
                 if progress:
                     progress(done, total, None)
                 continue
-            system.stage_ms["load"] += (time.perf_counter() - t0) * 1e3
             step = system.step(frame)
             if on_frame:
                 on_frame(frame, step)

@@ -200,9 +200,13 @@ class Slam:
         """A new keyframe: a submap boundary maybe, the pose graph and loop detection, then the
         landmark tracks and (after accepted loops) bundle adjustment."""
         kf = self.tracker.state.keyframes[-1]
-        self.kf_rows.append(len(self.frames))
         if link is None:
             self.model.on_keyframe(kf.id, kf.T_world_cam)
+        return self._add_keyframe(kf, link)
+
+    def _add_keyframe(self, kf: Keyframe, link: KeyframeLink | None) -> list[LoopRecord]:
+        """The keyframe's row, the pose graph and loop detection, then bundle adjustment."""
+        self.kf_rows.append(len(self.frames))
         loops = self.closer.add_keyframe(kf, link)
         self._bundle_adjust_after(kf, loops, link)
         return loops
@@ -235,9 +239,7 @@ class Slam:
         loops: list[LoopRecord] = []
         s = f.status
         if f.keyframe is not None:
-            self.kf_rows.append(len(self.frames))
-            loops = self.closer.add_keyframe(f.keyframe, f.link)
-            self._bundle_adjust_after(f.keyframe, loops, f.link)
+            loops = self._add_keyframe(f.keyframe, f.link)
         if f.T_world_cam is not None:
             self.frames.append(s.index, s.timestamp, f.T_world_cam, f.run, s.segment)
         if f.relocalisation is not None:

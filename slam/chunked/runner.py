@@ -26,7 +26,13 @@ from slam.config import SlamConfig
 from slam.data.base import Sequence
 from slam.data.checks import check_sequence
 from slam.errors import RunFolderError, SlamError
-from slam.pipeline import evaluate_against_ground_truth, frame_indices, summary_line
+from slam.pipeline import (
+    color_registered,
+    evaluate_against_ground_truth,
+    frame_indices,
+    new_system,
+    summary_line,
+)
 from slam.results import RunResult
 from slam.run_folder.checkpoint import read_checkpoint
 from slam.run_folder.layout import CHUNKS_DIR, CHUNKS_FILE
@@ -100,12 +106,11 @@ def run_chunked(
              overlap, workers)  # fmt: skip
     reports = run_tasks(tasks, workers, executor, ray_address)
     t_tracked = time.perf_counter()
-    registered = cfg.dataset.color_registered
-    registered = sequence.color_registered if registered is None else registered
+    registered = color_registered(sequence, cfg)
     joiner = Joiner(cfg, sequence.has_color, registered)
     for c in chunks:
         cut = indices[c.keep_stop] if c.keep_stop < len(indices) else float("inf")
-        joiner.add(c, _load_part(run_dir, c, cfg, sequence.has_color, registered), cut)
+        joiner.add(c, _load_part(run_dir, c, sequence, cfg), cut)
     t_joined = time.perf_counter()
     result = joiner.system.finish()
     t_end = time.perf_counter()
@@ -163,9 +168,7 @@ def _plan(
     return chunks
 
 
-def _load_part(
-    run_dir: str | Path, chunk: Chunk, cfg: SlamConfig, has_color: bool, registered: bool
-) -> Slam:
+def _load_part(run_dir: str | Path, chunk: Chunk, sequence: Sequence, cfg: SlamConfig) -> Slam:
     """A finished chunk's system, from its state in the run folder."""
     state, position = read_checkpoint(chunk_dir(run_dir, chunk.number))
     if position != chunk.frames:
@@ -173,6 +176,6 @@ def _load_part(
             f"{chunk_dir(run_dir, chunk.number)}: the chunk's state stops after {position} of "
             f"its {chunk.frames} frames; run `slam run --resume {run_dir}` to finish it"
         )
-    part = Slam(cfg, has_color=has_color, color_registered=registered)
+    part = new_system(sequence, cfg, None)
     part.load_state_dict(state)
     return part

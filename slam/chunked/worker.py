@@ -60,10 +60,8 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     set_kernel_threads(task["threads"])
     from slam.config import config_from_dict
     from slam.data.loader import open_sequence
-    from slam.errors import FrameReadError
-    from slam.pipeline import ReadTimes, prefetch
+    from slam.pipeline import new_system, next_frame, prefetch
     from slam.run_folder.checkpoint import write_checkpoint
-    from slam.system import Slam
     from slam.trajectory import atomic_write_text
 
     run_dir, number, indices = task["run_dir"], int(task["number"]), list(task["indices"])
@@ -77,22 +75,11 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     (folder / "worker.pid").write_text(str(os.getpid()))
     cfg = config_from_dict(task["config"])
     seq = open_sequence(cfg.dataset.path, cfg.dataset.layout, cfg.dataset.calibration)
-    registered = cfg.dataset.color_registered
-    system = Slam(
-        cfg, has_color=seq.has_color, spill_dir=str(submaps_dir(folder)),
-        color_registered=seq.color_registered if registered is None else registered,
-    )  # fmt: skip
-    reads = ReadTimes()
-    for i, future in prefetch(seq, indices, times=reads):
-        t_wait = time.perf_counter()
-        try:
-            frame = future.result()
-        except FrameReadError as exc:
-            system.stage_ms["load"] += (time.perf_counter() - t_wait) * 1e3
-            system.skip(i, seq.timestamp(i), str(exc))
-            continue
-        system.stage_ms["load"] += (time.perf_counter() - t_wait) * 1e3
-        system.step(frame)
+    system = new_system(seq, cfg, submaps_dir(folder))
+    for i, future in prefetch(seq, indices):
+        frame = next_frame(system, seq, i, future)
+        if frame is not None:
+            system.step(frame)
     write_checkpoint(folder, system.state_dict(), len(indices), 0)
     report = {
         "number": number,
