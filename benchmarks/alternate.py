@@ -95,7 +95,8 @@ def main() -> None:
         "median_fps_tf_ratio_b_over_a": statistics.median(p["fps_tf_ratio"] for p in pairs),
         "machine": machine(),
     }
-    name = args.name or f"{args.sequence}-{args.a_rev or Path(args.a_config).stem or 'a'}"
+    seq_name = Path(args.sequence).name  # a folder: its name
+    name = args.name or f"{seq_name}-{args.a_rev or Path(args.a_config).stem or 'a'}"
     out = write_result(f"alternate-{name}", data)
     print(
         f"{out}: B/A whole-run time {data['median_seconds_ratio_b_over_a']:.3f}, "

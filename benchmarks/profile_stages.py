@@ -18,6 +18,7 @@ import cProfile
 import logging
 import pstats
 import sys
+from pathlib import Path
 
 from common import ROOT, machine, sequence_path, write_result
 
@@ -62,7 +63,7 @@ def main() -> None:
         "top": rows[: args.top],
         "machine": machine(),
     }
-    path = write_result(f"profile-{args.sequence}", out)
+    path = write_result(f"profile-{Path(args.sequence).name}", out)  # a folder: its name
     print(f"{n} frames, {total:.1f} ms a frame under the profiler")
     print("| function | calls a frame | ms a call | ms a frame |")
     print("|---|---|---|---|")

@@ -71,6 +71,7 @@ class _TargetLevel:
     vertex: np.ndarray  # (H * W, 3) float32
     normal: np.ndarray  # (H * W, 3) float32, 0 where unknown
     photo: np.ndarray | None  # (H, W, 3) float32: intensity, d/du, d/dv
+    has_normal: np.ndarray  # (H * W,) bool: the normal is known
 
 
 def _source_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray, step: int):
@@ -99,7 +100,9 @@ def _target_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray
         gx[:, 1:-1] = 0.5 * (i[:, 2:] - i[:, :-2])
         gy[1:-1, :] = 0.5 * (i[2:, :] - i[:-2, :])
         photo = np.ascontiguousarray(np.stack([i, gx, gy], axis=-1))
-    return _TargetLevel((h, w), z.reshape(-1), vertex.reshape(-1, 3), normal.reshape(-1, 3), photo)
+    normal = normal.reshape(-1, 3)
+    has_normal = np.any(normal != 0, axis=1)
+    return _TargetLevel((h, w), z.reshape(-1), vertex.reshape(-1, 3), normal, photo, has_normal)
 
 
 class RgbdImage:
@@ -252,6 +255,7 @@ def joint_align(
         K = target.K[level]
         fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
         h, w = tgt.shape
+        in_range = np.count_nonzero(src.points[:, 2] < fitness_depth_max_m) if level == 0 else 0
         for _ in range(n_iter):
             Q = src.points @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
             z = Q[:, 2]
@@ -270,7 +274,7 @@ def joint_align(
             # geometric term: point-to-plane against the projectively associated target vertex
             n = tgt.normal[pix]
             r_g = np.einsum("ij,ij->i", Qi - tgt.vertex[pix], n)
-            geo = np.flatnonzero((np.abs(r_g) < gate) & np.any(n != 0, axis=1))
+            geo = np.flatnonzero((np.abs(r_g) < gate) & tgt.has_normal[pix])
             if len(geo) < 6:
                 return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)
             rg = r_g[geo]
@@ -293,7 +297,6 @@ def joint_align(
             H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
             T = exp_se3(-np.linalg.solve(H, b)) @ T
             if level == 0:
-                in_range = np.count_nonzero(src.points[:, 2] < fitness_depth_max_m)
                 fitness = min(1.0, len(rg) / max(in_range, 1))
                 rmse = float(np.sqrt(np.mean(rg.astype(np.float64) ** 2)))
     return IcpResult(T, fitness, rmse)

@@ -24,17 +24,19 @@ def kabsch_batch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = 
     if weights is None:
         weights = np.ones(src.shape[:2])
     w = weights / np.maximum(weights.sum(axis=1, keepdims=True), 1e-12)
-    mu_s = np.einsum("bn,bni->bi", w, src)
-    mu_d = np.einsum("bn,bni->bi", w, dst)
-    S = np.einsum("bn,bni,bnj->bij", w, src - mu_s[:, None], dst - mu_d[:, None])
+    # batched matrix products (BLAS), not einsum: einsum's generic loops were most of
+    # RANSAC's time
+    mu_s = (w[:, None, :] @ src)[:, 0]
+    mu_d = (w[:, None, :] @ dst)[:, 0]
+    S = np.swapaxes(w[..., None] * (src - mu_s[:, None]), 1, 2) @ (dst - mu_d[:, None])
     U, _, Vt = np.linalg.svd(S)
-    d = np.sign(np.linalg.det(np.einsum("bij,bjk->bik", U, Vt)))
+    d = np.sign(np.linalg.det(U @ Vt))
     D = np.tile(np.eye(3), (len(src), 1, 1))
     D[:, 2, 2] = d
-    R = np.einsum("bji,bjk,bkl->bil", Vt, D, np.swapaxes(U, 1, 2))
+    R = np.swapaxes(Vt, 1, 2) @ D @ np.swapaxes(U, 1, 2)
     T = np.tile(np.eye(4), (len(src), 1, 1))
     T[:, :3, :3] = R
-    T[:, :3, 3] = mu_d - np.einsum("bij,bj->bi", R, mu_s)
+    T[:, :3, 3] = mu_d - (R @ mu_s[..., None])[..., 0]
     return T
 
 
@@ -105,7 +107,7 @@ def ransac_rigid(
     if not ok.any():
         return fail
     Ts = kabsch_batch(S[ok], D[ok])
-    pred = np.einsum("bij,nj->bni", Ts[:, :3, :3], src) + Ts[:, None, :3, 3]
+    pred = src @ np.swapaxes(Ts[:, :3, :3], 1, 2) + Ts[:, None, :3, 3]
     err2 = ((pred - dst[None]) ** 2).sum(-1)
     counts = (err2 < threshold**2).sum(1)
     best = int(np.argmax(counts))

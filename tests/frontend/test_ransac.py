@@ -2,7 +2,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slam.frontend.ransac import kabsch, ransac_rigid, umeyama
+from slam.frontend.ransac import kabsch, kabsch_batch, ransac_rigid, umeyama
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 
 twist = st.tuples(*[st.floats(-2.0, 2.0)] * 3, *[st.floats(-2.0, 2.0)] * 3).map(np.array)
@@ -16,6 +16,23 @@ def test_kabsch_recovers_random_rigid_motion(xi, seed):
     src = rng.uniform(-1, 1, (20, 3))
     dst = src @ T[:3, :3].T + T[:3, 3]
     np.testing.assert_allclose(kabsch(src, dst), T, atol=1e-8)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(twist, min_size=1, max_size=4), st.integers(0, 10_000))
+def test_kabsch_batch_solves_each_item_on_its_weighted_pairs(xis, seed):
+    """Each item of a batch is its own weighted problem: pairs of weight 0 (here wrong ones)
+    do not count, and the batch agrees with the single solve."""
+    rng = np.random.default_rng(seed)
+    Ts = np.array([exp_se3(xi) for xi in xis])
+    src = rng.uniform(-1, 1, (len(xis), 12, 3))
+    dst = np.einsum("bij,bnj->bni", Ts[:, :3, :3], src) + Ts[:, None, :3, 3]
+    weights = rng.uniform(0.5, 2.0, (len(xis), 12))
+    weights[:, :3] = 0.0
+    dst[:, :3] += rng.uniform(-1, 1, (len(xis), 3, 3))  # wrong, and weightless
+    got = kabsch_batch(src, dst, weights)
+    np.testing.assert_allclose(got, Ts, atol=1e-8)
+    np.testing.assert_allclose(got[0], kabsch(src[0], dst[0], weights[0]), atol=1e-12)
 
 
 @settings(max_examples=50, deadline=None)
