@@ -4,9 +4,9 @@ in a thread of the same process.)
     python benchmarks/gtsam_gil.py
 
 Optimises a pose graph of 3,000 poses (odometry chain plus loop edges) with
-Levenberg-Marquardt (10 times) while a second thread counts in a pure-Python loop. A call that releases
-the GIL leaves the counting thread at its full rate on the other core; one that holds it
-stops the thread for as long as it runs. Writes ``benchmarks/results/gtsam-gil.json`` with
+Levenberg-Marquardt, 10 times, while a second thread counts in a pure-Python loop. A call
+that releases the GIL leaves the counting thread at its full rate on the other core; one that
+holds it stops the thread for as long as it runs. Writes ``benchmarks/results/gtsam-gil.json`` with
 the counting rates before and during the optimisation.
 """
 
