@@ -66,8 +66,9 @@ def run_sequence(
     processes where Ray is not installed; ``executor`` forces one; ``worker_threads``: kernel
     threads per worker, default the cores over the workers) and joined
     (:mod:`slam.chunked`); a finished chunk is kept, so :func:`resume_run` continues after a
-    kill without redoing it. Per-frame hooks (``progress``, ``on_frame``, ``rerun``) see no
-    frames then: the frames are tracked in other processes.
+    kill without redoing it. ``progress`` then counts the frames the workers have stepped
+    (``status`` None); the per-frame hooks (``on_frame``, ``rerun``) see no frames: the frames
+    are tracked in other processes.
     """
     cfg = config if config is not None else load_config(config_path)
     if max_frames is not None:
@@ -96,7 +97,8 @@ def run_sequence(
 
             def run_fn(hook: FrameCallback | None) -> RunResult:
                 return run_chunked(seq, cfg, out, workers, executor=executor,
-                                   ray_address=ray_address, threads=worker_threads)  # fmt: skip
+                                   ray_address=ray_address, threads=worker_threads,
+                                   progress=progress)  # fmt: skip
         else:
 
             def run_fn(hook: FrameCallback | None) -> RunResult:
@@ -209,7 +211,9 @@ def resume_run(
         return _resume(folder, progress, checkpoint_every, on_frame, rerun)
 
 
-def _resume_chunked(folder: RunFolder, rerun: str | Path | None) -> tuple[RunResult, Path]:
+def _resume_chunked(
+    folder: RunFolder, progress: ProgressCallback | None, rerun: str | Path | None
+) -> tuple[RunResult, Path]:
     """Continue a parallel run: its chunks that finished are kept, the others run again."""
     from slam.chunked.runner import read_plan, run_chunked
 
@@ -219,7 +223,7 @@ def _resume_chunked(folder: RunFolder, rerun: str | Path | None) -> tuple[RunRes
     workers = int(read_plan(run_dir)["workers"])
     result = _recorded(
         _recorder(rerun, seq.name),
-        lambda hook: run_chunked(seq, cfg, run_dir, workers, resume=True),
+        lambda hook: run_chunked(seq, cfg, run_dir, workers, resume=True, progress=progress),
         None,
         run_dir,
     )
@@ -237,7 +241,7 @@ def _resume(
     if folder.complete:
         raise RunFolderError(f"{run_dir}: the run is complete ({METRICS_FILE}); nothing to resume")
     if _chunked(run_dir):
-        return _resume_chunked(folder, rerun)
+        return _resume_chunked(folder, progress, rerun)
     if not has_checkpoint(run_dir):
         raise RunFolderError(
             f"{run_dir}: no checkpoint to resume from ({CHECKPOINT_DIR}/{STATE_FILE}); the run "

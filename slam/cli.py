@@ -185,8 +185,9 @@ class _RunProgress:
     """The progress bar of `slam run`: it appears at the first frame (not while the sequence is
     checked), shows fps and the tracking state; nothing with --quiet."""
 
-    def __init__(self, quiet: bool) -> None:
+    def __init__(self, quiet: bool, parallel: bool = False) -> None:
         self.quiet = quiet
+        self.parallel = parallel  # frames stepped by worker processes: no status of their own
         self.bar = _progress(
             TextColumn("{task.fields[fps]:>5.1f} fps"), TextColumn("{task.fields[state]}")
         )
@@ -203,7 +204,11 @@ class _RunProgress:
             self.first = done
         fps = (done - self.first) / max(time.perf_counter() - self.t0, 1e-9)
         if done == total:
-            state = "finishing: pose graph, map, mesh, files"
+            state = "joining, finishing: pose graph, map, mesh, files"
+            if not self.parallel:
+                state = state.removeprefix("joining, ")
+        elif self.parallel:
+            state = "workers tracking their chunks"
         elif status is None:
             state = "[yellow]skipped (unreadable)[/]"
         elif status.ok:
@@ -215,6 +220,15 @@ class _RunProgress:
     def stop(self) -> None:
         if self.t0 is not None:  # started at the first frame
             self.bar.stop()
+
+
+def _chunked_run(run_dir: Path | None) -> bool:
+    """Whether ``--resume`` continues a parallel run (``--workers N``)."""
+    if run_dir is None:
+        return False
+    from slam.chunked.runner import is_chunked
+
+    return is_chunked(run_dir)
 
 
 @command(short_help="Track a sequence into a run folder: trajectory, mesh, metrics.")
@@ -309,7 +323,7 @@ def run(
         check_recording_path(rerun)
     if sequence is None and resume is None:
         sequence = _generate_demo(quiet)
-    bar = _RunProgress(quiet)
+    bar = _RunProgress(quiet, parallel=workers > 1 or _chunked_run(resume))
     try:
         if resume is not None:
             result, run_dir = resume_run(

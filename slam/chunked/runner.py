@@ -14,19 +14,23 @@ import json
 import logging
 import os
 import resource
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from slam.chunked.executor import run_tasks
 from slam.chunked.join import Joiner
 from slam.chunked.plan import Chunk, plan_chunks
-from slam.chunked.worker import chunk_dir
+from slam.chunked.worker import PROGRESS_EVERY_S, chunk_dir, frames_done
 from slam.config import SlamConfig
 from slam.data.base import Sequence
 from slam.data.checks import check_sequence
 from slam.errors import RunFolderError, SlamError
 from slam.pipeline import (
+    ProgressCallback,
     color_registered,
     evaluate_against_ground_truth,
     frame_indices,
@@ -78,13 +82,16 @@ def run_chunked(
     ray_address: str | None = None,
     resume: bool = False,
     threads: int | None = None,
+    progress: ProgressCallback | None = None,
 ) -> RunResult:
     """Run SLAM over ``sequence`` in ``workers`` chunks at once (see the module docstring).
     ``run_dir`` is required: the chunks' states and submaps wait there until the join.
     ``overlap``: frames tracked by both of two consecutive chunks (default :data:`OVERLAP`).
     ``resume``: continue the parallel run in ``run_dir`` (its plan; finished chunks are
     kept). ``threads``: kernel threads per worker (default: the machine's cores over
-    ``workers``, at least 1)."""
+    ``workers``, at least 1). ``progress(done, total, None)``: called from a watcher thread
+    about twice a second while the chunks run, with the frames the workers have stepped
+    (the overlaps counted once), and once with ``done == total`` before the join."""
     cfg = config.validate()
     if workers < 1:
         raise SlamError(f"--workers must be >= 1, got {workers}")
@@ -104,7 +111,10 @@ def run_chunked(
     ]  # fmt: skip
     log.info("%d frames in %d chunks (overlap %d) on %d workers", len(indices), len(chunks),
              overlap, workers)  # fmt: skip
-    reports = run_tasks(tasks, workers, executor, ray_address)
+    with _watch(run_dir, chunks, len(indices), progress):
+        reports = run_tasks(tasks, workers, executor, ray_address)
+    if progress is not None:
+        progress(len(indices), len(indices), None)
     t_tracked = time.perf_counter()
     registered = color_registered(sequence, cfg)
     joiner = Joiner(cfg, sequence.has_color, registered)
@@ -146,6 +156,33 @@ def run_chunked(
     atomic_write_text(Path(run_dir) / CHUNKS_FILE, json.dumps(summary, indent=1) + "\n")
     log.info("%s (%d workers): %s", sequence.name, len(chunks), summary_line(m.as_json()))
     return result
+
+
+@contextmanager
+def _watch(
+    run_dir: str | Path, chunks: list[Chunk], total: int, progress: ProgressCallback | None
+) -> Iterator[None]:
+    """While the block runs, report the chunks' frames done to ``progress`` (every
+    :data:`~slam.chunked.worker.PROGRESS_EVERY_S`): the workers write them to their chunk
+    folders, on whatever machine they run."""
+    if progress is None:
+        yield
+        return
+    stop = threading.Event()
+    stepped = sum(c.frames for c in chunks)
+
+    def watch() -> None:
+        while not stop.wait(PROGRESS_EVERY_S):
+            done = sum(min(frames_done(run_dir, c.number), c.frames) for c in chunks)
+            progress(min(round(done * total / stepped), total - 1), total, None)
+
+    watcher = threading.Thread(target=watch, name="chunk-progress", daemon=True)
+    watcher.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        watcher.join()
 
 
 def _plan(

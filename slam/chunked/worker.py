@@ -22,6 +22,9 @@ from slam.run_folder.layout import CHUNKS_DIR
 log = logging.getLogger(__name__)
 
 CHUNK_FILE = "chunk.json"
+#: frames the chunk's worker has stepped so far (rewritten at most every PROGRESS_EVERY_S)
+PROGRESS_FILE = "progress"
+PROGRESS_EVERY_S = 0.5
 
 
 def chunk_dir(run_dir: str | Path, number: int) -> Path:
@@ -38,6 +41,18 @@ def finished_report(run_dir: str | Path, number: int, n_frames: int) -> dict[str
     if not isinstance(report, dict) or report.get("frames") != n_frames:
         return None
     return report
+
+
+def frames_done(run_dir: str | Path, number: int) -> int:
+    """How many of its frames chunk ``number`` has stepped, as its worker last wrote (all of
+    them once it finished; 0 before it starts, or when the file is being replaced)."""
+    folder = chunk_dir(run_dir, number)
+    try:
+        if (folder / CHUNK_FILE).is_file():
+            return int(json.loads((folder / CHUNK_FILE).read_text())["frames"])
+        return int((folder / PROGRESS_FILE).read_text())
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0
 
 
 def set_kernel_threads(threads: int) -> None:
@@ -76,10 +91,14 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     cfg = config_from_dict(task["config"])
     seq = open_sequence(cfg.dataset.path, cfg.dataset.layout, cfg.dataset.calibration)
     system = new_system(seq, cfg, submaps_dir(folder))
-    for i, future in prefetch(seq, indices):
+    written = time.monotonic()
+    for k, (i, future) in enumerate(prefetch(seq, indices)):
         frame = next_frame(system, seq, i, future)
         if frame is not None:
             system.step(frame)
+        if time.monotonic() - written >= PROGRESS_EVERY_S:  # for the driver's progress bar
+            atomic_write_text(folder / PROGRESS_FILE, str(k + 1))
+            written = time.monotonic()
     write_checkpoint(folder, system.state_dict(), len(indices), 0)
     report = {
         "number": number,

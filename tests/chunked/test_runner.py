@@ -50,9 +50,14 @@ def _check_joined(out: Path, seq: Path, sequential: tuple[Path, float], workers:
 
 
 def test_two_worker_processes_match_the_sequential_run(synth_loop_320, sequential, tmp_path):
+    calls = []
     _, out = run_sequence(synth_loop_320, tmp_path / "run", max_frames=FRAMES, workers=2,
-                          executor="processes")  # fmt: skip
+                          executor="processes", progress=lambda *a: calls.append(a))  # fmt: skip
     chunks = _check_joined(out, synth_loop_320, sequential, 2)
+    # the progress bar follows the workers' frames (the overlap counted once), then the join
+    done = [d for d, total, status in calls]
+    assert calls[-1] == (FRAMES, FRAMES, None) and all(t == FRAMES for _, t, _ in calls)
+    assert any(0 < d < FRAMES for d in done) and done == sorted(done)
     assert all(
         c["worker"]["threads"] == max(1, (os.cpu_count() or 1) // 2) for c in chunks["chunks"]
     )
@@ -81,6 +86,25 @@ def test_a_worker_killed_mid_chunk_is_run_again(synth_loop_320, sequential, tmp_
     killer.join()
     chunks = _check_joined(out, synth_loop_320, sequential, 2)
     assert killed and chunks["chunks"][1]["worker"]["worker_pid"] != killed[0]
+
+
+def test_chunks_run_on_an_existing_ray_cluster(synth_loop_320, sequential, tmp_path, monkeypatch):
+    """``--ray ADDRESS``: the chunks run as tasks of a cluster this process did not start (a
+    head node in its own processes, as ``ray start --head`` makes one) and join as locally."""
+    pytest.importorskip("ray", reason="Ray is not installed (no wheel for this platform)")
+    from ray.cluster_utils import Cluster
+
+    if len(os.environ.get("TMPDIR", "")) > 40 and "RAY_TMPDIR" not in os.environ:
+        monkeypatch.setenv("RAY_TMPDIR", "/tmp")  # Unix socket paths must stay under 108 bytes
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 2})
+    try:
+        _, out = run_sequence(synth_loop_320, tmp_path / "run", max_frames=FRAMES, workers=2,
+                              ray_address=cluster.address)  # fmt: skip
+    finally:
+        cluster.shutdown()
+    chunks = _check_joined(out, synth_loop_320, sequential, 2)
+    pids = {c["worker"]["worker_pid"] for c in chunks["chunks"]}
+    assert os.getpid() not in pids and len(pids) == 2
 
 
 def test_a_run_stopped_between_chunks_resumes_without_redoing_them(
