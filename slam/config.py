@@ -129,10 +129,11 @@ class TrackingConfig:
     degenerate_ratio: float = 40.0
     # colour joins depth in every alignment of a frame (at motion_check_photometric_weight,
     # where colour is registered) whose ICP depth has a ratio above degenerate_ratio, or above
-    # photometric_ratio while the motion is not large (the photometric term's basin is a few
-    # pixels): depth against the model slides along its weak direction by the model's own
-    # sub-millimetre bias times about the ratio (wall rows: 11 mm a frame at ratios 22-27;
-    # benchmarks/self_render_bias.py)
+    # photometric_ratio while the predicted motion is not fast and no gap precedes the frame
+    # (the photometric term's basin is a few pixels; the first step's motion is unknown, and
+    # its RANSAC seed brings colour within reach): depth against the model slides along its
+    # weak direction by the model's own sub-millimetre bias times about the ratio (wall rows:
+    # 11 mm a frame at ratios 22-27; benchmarks/self_render_bias.py)
     photometric_ratio: float = 20.0
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0

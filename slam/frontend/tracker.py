@@ -337,18 +337,18 @@ class Tracker:
         large (or the frame follows a gap, or is the first since tracking started: its motion
         is unknown): then the prediction alone is not trusted. A frame
         whose depth is blind in one direction (``constraint_ratio`` above
-        ``degenerate_ratio``), or weak in it (above ``photometric_ratio``) while the motion
-        is not large, is aligned with colour joining depth (where colour is registered)."""
+        ``degenerate_ratio``), or weak in it (above ``photometric_ratio``) while the predicted
+        motion is not fast and no gap precedes it, is aligned with colour joining depth (where
+        colour is registered)."""
         cfg, st = self.cfg, self.state
         assert st.T_world_prev is not None, "predict needs a previous pose (call reset)"
         velocity = scale_motion(st.velocity, float(np.clip(dt_ratio, 0.0, MAX_EXTRAPOLATION)))
         first_step = not st.velocity_known
-        large = (
-            verify
-            or first_step
-            or translation_norm(velocity) > cfg.large_motion_translation_m
+        fast = (
+            translation_norm(velocity) > cfg.large_motion_translation_m
             or rotation_angle_deg(velocity) > cfg.large_motion_rotation_deg
         )
+        large = verify or first_step or fast
         status = TrackingStatus(p.index, "icp", False, p.timestamp, gap=verify)
         status.segment = segment
         prev: np.ndarray | list[np.ndarray] | None = None  # what frame-to-frame ICP aligns to
@@ -358,10 +358,11 @@ class Tracker:
         att.prev_depth, att.prev_frame = prev, st.prev_frame
         status.constraint_ratio = round(p.constraint_ratio, 2)
         # depth is blind along one direction, or weak along it while the motion is small
-        # enough for the photometric term (not a large, RANSAC-seeded step: on frames 0.66 s
+        # enough for the photometric term (not a fast, RANSAC-seeded step: on frames 0.66 s
         # apart colour joining weak depth made the cabinet 0.02 -> 0.11 m): colour joins
-        # depth in every alignment
-        weak = p.constraint_ratio > cfg.photometric_ratio and not large
+        # depth in every alignment. The first step's motion is unknown, not fast: its RANSAC
+        # seed puts colour within reach (depth alone slid 36 mm on the first step of a hall)
+        weak = p.constraint_ratio > cfg.photometric_ratio and not (verify or fast)
         blind = p.constraint_ratio > cfg.degenerate_ratio or weak
         if blind and p.photometric_image(len(cfg.iterations)) is not None:
             att.photometric = cfg.motion_check_photometric_weight

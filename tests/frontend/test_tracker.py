@@ -310,6 +310,15 @@ def test_a_frame_whose_depth_is_blind_is_aligned_with_colour(world, model):
     p.constraint_ratio = 0.5 * (cfg.photometric_ratio + cfg.degenerate_ratio)
     assert tracker.predict(p).status.photometric
     assert not tracker.predict(p, verify=True).status.photometric
+    state = tracker.state
+    velocity, overlaps = state.velocity, state.recent_overlaps
+    state.velocity = _motion(0.2, 0.0)  # a fast predicted step
+    assert tracker.predict(p).large and not tracker.predict(p).status.photometric
+    # the first step after a reset: its motion is unknown (large: RANSAC seeds it), not fast
+    state.velocity, state.recent_overlaps = np.eye(4), []
+    first = tracker.predict(p)
+    assert first.first_step and first.large and first.status.photometric
+    state.velocity, state.recent_overlaps = velocity, overlaps
     p.constraint_ratio = 100.0
     tracker.align(att, model, *tracker.seed(att))
     dt, dr = _errors(att.T_world_cam, world.poses[10])
