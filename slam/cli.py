@@ -204,9 +204,8 @@ class _RunProgress:
             self.first = done
         fps = (done - self.first) / max(time.perf_counter() - self.t0, 1e-9)
         if done == total:
-            state = "joining, finishing: pose graph, map, mesh, files"
-            if not self.parallel:
-                state = state.removeprefix("joining, ")
+            join = "joining the chunks, " if self.parallel else ""
+            state = f"{join}finishing: pose graph, map, mesh, files"
         elif self.parallel:
             state = "workers tracking their chunks"
         elif status is None:

@@ -267,3 +267,22 @@ def test_view_open_without_display_fails_and_keeps_the_recording(tmp_path, monke
     assert "DISPLAY" in viewer.no_display_reason({})
     monkeypatch.setattr(viewer.sys, "platform", "darwin")
     assert viewer.no_display_reason({}) is None
+
+
+def test_the_progress_bar_of_a_parallel_run_says_what_the_workers_do():
+    """With --workers N the frames come from worker processes: no tracking status, no
+    'skipped' for them; at the end the bar says the chunks are being joined."""
+    from slam.cli import _RunProgress
+
+    for parallel, during, end in [
+        (True, "workers tracking their chunks", "joining the chunks, finishing"),
+        (False, "skipped (unreadable)", "finishing"),
+    ]:
+        bar = _RunProgress(quiet=False, parallel=parallel)
+        try:
+            bar.on_frame(5, 10, None)
+            assert during in bar.bar.tasks[0].fields["state"]
+            bar.on_frame(10, 10, None)
+            assert bar.bar.tasks[0].fields["state"].startswith(end)
+        finally:
+            bar.stop()
