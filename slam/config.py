@@ -173,6 +173,12 @@ class MappingConfig:
     depth_max_m: float = 3.5
     integrate_color: bool = True
     raycast_weight_threshold: float = 3.0
+    # depth-only ray-casts (frame-to-model ICP without colour) refined by a Newton step on the
+    # trilinear TSDF: the ray-caster's voxel-pattern error (about 3 mm median at 1 cm voxels)
+    # falls to 0.3 mm, for a second ray-cast and a numpy gather a render. Opt-in: the real
+    # sequences and desks track better (cabinet 0.026 -> 0.018 m), some walls, halls and fast
+    # rooms worse, and tracking + fusion runs at 0.69x the fps (docs/benchmarks.md, session 15)
+    raycast_refine: bool = False
     mesh_weight_threshold: float = 3.0
     # submaps: each fused in the frame of its anchor keyframe, re-fused under corrected anchors
     submap_keyframes: int = 10  # a new submap every this many keyframes (0: a single map)
