@@ -16,6 +16,7 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
+from slam.camera import backproject
 from slam.config import MappingConfig
 from slam.geometry import inv_T
 from slam.mapping.range_map import RangeMapBuffer, fragments_bound
@@ -104,10 +105,8 @@ def _newton_depth(
     with ``t`` the depth and ``f`` the trilinear TSDF there. 0 where not all 8 voxels around
     the point are observed, or the step is not a descent onto the surface within 1.5 voxels."""
     depth = out["depth"].numpy()[..., 0]
-    h, w = depth.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    rays_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
-    rays_world = rays_cam @ R_world_cam.T.astype(np.float32)  # per metre of depth
+    rays_cam = backproject(np.ones_like(depth), K)  # K^-1 [u, v, 1]: per metre of depth
+    rays_world = rays_cam @ R_world_cam.T.astype(np.float32)
     vals = tsdf[out["index"].numpy()]  # (h, w, 8); unobserved corners have weight 0
     f = np.einsum("hwk,hwk->hw", out["interp_ratio"].numpy(), vals)
     dfdt = sum(
@@ -294,7 +293,8 @@ class TSDFVolume:
         """``depth`` (a ray-cast from ``T_world_cam`` moved by half a voxel) with each pixel a
         Newton step can refine put on the trilinear surface (:func:`_newton_depth`): a second
         march, from the unshifted camera, so that the trilinear read places voxel (i, j, k)
-        where integration measured it. The ray-cast's range map is already large enough."""
+        where integration measured it. The range map needs no growing: the first march grew
+        it to twice its need, and half a voxel moves the blocks' fragment bound by little."""
         h, w = depth.shape
         out = self.vbg.ray_cast(
             blocks, _tensor(K, np.float64), _tensor(inv_T(T_world_cam), np.float64), w, h,
