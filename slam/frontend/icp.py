@@ -10,14 +10,9 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from slam.camera import scale_intrinsics
+from slam.camera import DepthNoise, scale_intrinsics
 from slam.frontend.pointcloud import depth_pyramid, normal_map
-from slam.frontend.weighted_icp import (
-    DepthNoise,
-    SourcePoints,
-    vertex_map,
-    weighted_point_to_plane,
-)
+from slam.frontend.weighted_icp import SourcePoints, vertex_map, weighted_point_to_plane
 
 _odom = o3d.t.pipelines.odometry
 log = logging.getLogger(__name__)

@@ -21,11 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slam.camera import DepthNoise
 from slam.frontend.pointcloud import normal_map
 from slam.geometry import exp_se3
 
 _MAD = 1.4826
 
+__all__ = ["DepthNoise", "SourcePoints", "depth_constraint", "vertex_map"]
 
 
 def vertex_map(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -35,21 +37,6 @@ def vertex_map(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
     ys = ((np.arange(h) - K[1, 2]) / K[1, 1]).astype(np.float32)
     z = np.asarray(depth_m, np.float32)
     return np.stack([z * xs[None, :], z * ys[:, None], z], axis=-1)
-
-
-@dataclass(frozen=True)
-class DepthNoise:
-    """Axial depth noise ``sigma(z) = sigma0_m + quadratic * (z - z0_m)^2`` in metres."""
-
-    sigma0_m: float = 0.0012
-    quadratic: float = 0.0019
-    z0_m: float = 0.4
-
-    def sigma(self, z: np.ndarray) -> np.ndarray:
-        z = np.asarray(z, np.float32)
-        return np.float32(self.sigma0_m) + np.float32(self.quadratic) * (
-            z - np.float32(self.z0_m)
-        ) ** 2
 
 
 @dataclass
