@@ -227,21 +227,25 @@ class TSDFVolume:
             log.debug("frame fuses nothing: its depth misses the pixels Open3D samples")
             return
         weighted = None if self.noise is None else self._weigh_observations(blocks, T_world_cam)
-        if self.has_color and color is not None:
-            col = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.uint8)))
-            self.vbg.integrate(
-                blocks, depth, col, K_t, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
-            )
-        else:
-            self.vbg.integrate(blocks, depth, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc)
-        if weighted is not None:
-            weighted.count_observations()
+        try:
+            if self.has_color and color is not None:
+                col = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.uint8)))
+                self.vbg.integrate(
+                    blocks, depth, col, K_t, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
+                )
+            else:
+                self.vbg.integrate(blocks, depth, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc)
+        finally:  # counts and information back in place even when the integration failed
+            if weighted is not None:
+                weighted.count_observations()
         self._last_blocks = blocks
         self.n_integrated += 1
 
     def _weigh_observations(self, blocks: o3c.Tensor, T_world_cam: np.ndarray) -> _NoiseWeights:
         """Make Open3D's next integration of ``blocks`` a noise-weighted one (see
-        :class:`_NoiseWeights`); call ``count_observations()`` on the result after it."""
+        :class:`_NoiseWeights`); call ``count_observations()`` on the result after it. The
+        noise model is :class:`~slam.camera.DepthNoise`'s default (Kinect v1): mapping has no
+        sensor section of its own, and only the model's shape matters (weights are relative)."""
         assert self.noise is not None
         block_m = self.cfg.voxel_size_m * self.cfg.block_resolution
         centres = (blocks.numpy().astype(np.float64) + 0.5) * block_m
@@ -391,7 +395,8 @@ class TSDFVolume:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The allocated blocks as numpy arrays (copies): ``keys`` (N, 3) int32 block
-        coordinates, per attribute (``tsdf``, ``weight``, ``color`` when fused) an
+        coordinates, per attribute (``tsdf``, ``weight``, ``color`` when fused, ``info`` with
+        ``mapping.fusion_noise_weighting``) an
         (N, r, r, r, channels) float32 array, r = block resolution, and ``n_integrated``
         (0-d). ``np.savez`` of this dict is the file format of :meth:`save`."""
         hashmap = self.vbg.hashmap()
@@ -416,7 +421,9 @@ class TSDFVolume:
         keys = np.ascontiguousarray(arrays["keys"], np.int32)
         vol = cls(cfg, has_color, block_count=max(int(1.5 * len(keys)), 1000))
         if len(keys):
-            # a volume fused without noise weighting: each observation's information was 1
+            # a volume fused without noise weighting: each observation's information counts
+            # as 1, the weight of a depth at DepthNoise.z0_m (0.4 m), so later observations
+            # weigh less against it than they would against a volume fused with weights
             arrays = {"info": arrays["weight"], **arrays}
             values = [o3c.Tensor(np.ascontiguousarray(arrays[n])) for n in vol._attribute_names()]
             vol.vbg.hashmap().insert(o3c.Tensor(keys), values)

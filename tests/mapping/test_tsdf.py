@@ -217,7 +217,7 @@ def test_a_refined_raycast_puts_depth_on_the_fused_surface():
 def test_noise_weighted_fusion_averages_by_the_depth_noise():
     """A wall fused from 1 m, then seen 2 cm farther from 3 m away (a far view's error): counted
     as one observation each, the surface lands half way (1.01 m); weighted by the depth noise
-    (``fusion_noise_weighting``: information 0.41 at 1 m, 0.0065 at 3 m) it stays within 0.5 mm
+    (``fusion_noise_weighting``: information 0.41 at 1 m, 0.0071 at 3.02 m) it stays within 0.5 mm
     of the near view, in either order. The weight attribute still counts observations (the
     ray-cast's and marching cubes' thresholds), and the information survives save and load."""
     from slam.camera import DepthNoise
