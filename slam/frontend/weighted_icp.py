@@ -27,8 +27,6 @@ from slam.geometry import exp_se3
 
 _MAD = 1.4826
 
-__all__ = ["DepthNoise", "SourcePoints", "depth_constraint", "vertex_map"]
-
 
 def vertex_map(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
     """(H, W, 3) float32 camera-frame points of a depth image (0 where no depth)."""

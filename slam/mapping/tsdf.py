@@ -421,10 +421,11 @@ class TSDFVolume:
         keys = np.ascontiguousarray(arrays["keys"], np.int32)
         vol = cls(cfg, has_color, block_count=max(int(1.5 * len(keys)), 1000))
         if len(keys):
-            # a volume fused without noise weighting: each observation's information counts
-            # as 1, the weight of a depth at DepthNoise.z0_m (0.4 m), so later observations
-            # weigh less against it than they would against a volume fused with weights
-            arrays = {"info": arrays["weight"], **arrays}
+            if vol.noise is not None and "info" not in arrays:
+                # fused without noise weighting: each observation's information counts as 1,
+                # the weight of a depth at DepthNoise.z0_m (0.4 m), so later observations
+                # weigh less against it than they would against a volume fused with weights
+                arrays = {**arrays, "info": arrays["weight"]}
             values = [o3c.Tensor(np.ascontiguousarray(arrays[n])) for n in vol._attribute_names()]
             vol.vbg.hashmap().insert(o3c.Tensor(keys), values)
         vol.n_integrated = int(arrays.get("n_integrated", 1))

@@ -58,7 +58,7 @@ def test_fitness_and_overlap_count_only_pixels_in_range(room, K_vga):
 def test_overlap_gate_widens_with_the_depth_noise(K_vga):
     # a wall 6 m away measured 5 cm behind the model: within 3 sigma of a Kinect (6 cm at
     # 6 m), not within the fixed 3 cm gate; at 1 m the same offset stays outside
-    from slam.frontend.weighted_icp import DepthNoise
+    from slam.camera import DepthNoise
 
     K = K_vga.copy()
     K[:2] /= 4

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from slam.camera import DepthNoise
 from slam.frontend.pointcloud import normal_map
 from slam.frontend.weighted_icp import (
-    DepthNoise,
     SourcePoints,
     constraint,
     depth_constraint,

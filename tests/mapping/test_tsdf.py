@@ -244,7 +244,7 @@ def test_noise_weighted_fusion_averages_by_the_depth_noise():
     again = TSDFVolume.from_arrays(arrays, cfg, has_color=False)
     np.testing.assert_array_equal(again.to_arrays()["info"], arrays["info"])
     counted = TSDFVolume(MappingConfig(), has_color=False)
-    counted.integrate(*views[0][:1], None, K, T_near)
+    counted.integrate(views[0][0], None, K, T_near)
     # a volume fused without weighting: each observation's information was 1
     loaded = TSDFVolume.from_arrays(counted.to_arrays(), cfg, has_color=False)
     np.testing.assert_array_equal(loaded.to_arrays()["info"], counted.to_arrays()["weight"])
