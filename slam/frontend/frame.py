@@ -219,7 +219,9 @@ class PreparedFrame:
         weight: float | None = None,
     ) -> IcpResult:
         """Joint photometric + geometric alignment of this frame to ``target`` (needs
-        ``rgbd``); ``weight``: of the photometric term (default ``cfg.photometric_weight``)."""
+        ``rgbd``); ``weight``: of the photometric term (default ``cfg.photometric_weight``).
+        Along directions depth constrains ``degenerate_ratio`` times worse than its best,
+        colour decides alone."""
         assert self.rgbd is not None
         return joint_align(
             self.rgbd,
@@ -231,4 +233,5 @@ class PreparedFrame:
             cfg.coarse_correspondence_factor,
             cfg.photometric_weight if weight is None else weight,
             fitness_depth_max_m=self.icp_depth_max_m,
+            degenerate_ratio=cfg.degenerate_ratio,
         )

@@ -13,9 +13,15 @@ projection (``b``: a global brightness offset, re-estimated every iteration, whi
 exposure changes). ``rho`` is Huber's loss; ``s_geo``, ``s_pho`` are robust scales (1.4826 x
 the median absolute residual) re-estimated every iteration, so the two terms are weighed by
 their measured noise, not by units: noisy real depth hands weight to colour, exact synthetic
-depth keeps it. Pixels and intrinsics follow the pinhole convention (pixel (u, v) is the ray
-``K^-1 [u, v, 1]``; pyramids are 2x2 box averages, see
-:func:`slam.camera.scale_intrinsics`).
+depth keeps it.
+
+Along the directions the geometric term constrains ``degenerate_ratio`` times worse than its
+best (a corridor's length, a wall's plane), its information and gradient are left out and
+colour decides alone: what depth says there rests on a few pixels at depth edges and on the
+model's bias, and on exact depth its weight would drown colour.
+
+Pixels and intrinsics follow the pinhole convention (pixel (u, v) is the ray
+``K^-1 [u, v, 1]``; pyramids are 2x2 box averages, see :func:`slam.camera.scale_intrinsics`).
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ import numpy as np
 from slam.camera import scale_intrinsics
 from slam.frontend.icp import IcpResult
 from slam.frontend.pointcloud import depth_pyramid, normal_map
-from slam.frontend.weighted_icp import vertex_map
+from slam.frontend.weighted_icp import vertex_map, without_blind_directions
 from slam.geometry import exp_se3
 
 _MAD = 1.4826
@@ -228,6 +234,7 @@ def joint_align(
     min_pho_scale: float = 2.0 / 255.0,
     finest_step: int = 1,
     fitness_depth_max_m: float = float("inf"),
+    degenerate_ratio: float = 0.0,
 ) -> IcpResult:
     """Align ``source`` to ``target`` (see the module docstring); ``iterations`` per level,
     coarse to fine. Correspondence distance and Huber delta of the geometric term grow by
@@ -236,7 +243,10 @@ def joint_align(
     subsamples the source pixels at the finest level. Returns ``T_target_source``, fitness
     (fraction of source points with a geometric correspondence, finest level) and the
     geometric inlier RMSE. The fitness counts source points nearer than ``fitness_depth_max_m``
-    (the depth-only ICP's range, so both fitnesses mean the same)."""
+    (the depth-only ICP's range, so both fitnesses mean the same). With both terms and
+    ``degenerate_ratio`` > 0, the geometric term is left out of the directions it constrains
+    more than that many times worse than its best
+    (:func:`~slam.frontend.weighted_icp.without_blind_directions`): there colour decides alone."""
     T = np.asarray(init_T_target_source, float).copy()
     levels = len(iterations)
     use_pho = (
@@ -290,8 +300,11 @@ def joint_align(
                         src.intensity[pi], tgt.photo, Qi[vis], uf[pi], vf[pi], inv_z[pi], fx, fy,
                         photometric_weight, min_pho_scale,
                     )  # fmt: skip
-                    H += Hp
-                    b += bp
+                    if degenerate_ratio > 0:  # where depth is blind, colour decides alone
+                        median_z = float(np.median(Qi[geo, 2]))
+                        H, b = without_blind_directions(H, b, median_z, degenerate_ratio)
+                    H = H + Hp
+                    b = b + bp
             # a whisper of damping: directions nothing constrains (sliding along a bare wall)
             # stay put instead of making the system singular
             H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12

@@ -185,13 +185,21 @@ class Constraint:
         return self.weakest_std_m / max(self.strongest_std_m, 1e-30)
 
 
+def _metric_eigen(H: np.ndarray, depth_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(s, vals, vecs)``: the eigen-decomposition (ascending) of the information ``H`` in
+    scaled coordinates ``x / s`` where a rotation of 1 rad counts as the ``depth_m`` metres it
+    moves the scene (``s = [1/L]*3 + [1]*3``), so the six directions compare in metres."""
+    L = max(float(depth_m), 0.1)
+    s = np.array([1.0 / L] * 3 + [1.0] * 3)
+    Hs = H * s[:, None] * s[None, :]
+    vals, vecs = np.linalg.eigh(0.5 * (Hs + Hs.T))
+    return s, vals, vecs
+
+
 def constraint(H: np.ndarray, depth_m: float) -> Constraint:
     """Eigen-analysis of the information ``H`` with rotations scaled by ``depth_m`` (a rotation
     of 1 rad moves the scene by ``depth_m`` metres), so the six directions compare in metres."""
-    L = max(float(depth_m), 0.1)
-    S = np.diag([1.0 / L] * 3 + [1.0] * 3)  # scaled coordinates: rotation * L, translation
-    Hs = S @ H @ S
-    vals, vecs = np.linalg.eigh(0.5 * (Hs + Hs.T))
+    _, vals, vecs = _metric_eigen(H, depth_m)
     vals = np.maximum(vals, 1e-30)
     d = vecs[:, 0]
     return Constraint(
@@ -200,6 +208,26 @@ def constraint(H: np.ndarray, depth_m: float) -> Constraint:
         d,
         float(np.linalg.norm(d[3:]) ** 2),
     )
+
+
+def without_blind_directions(
+    H: np.ndarray, b: np.ndarray, depth_m: float, ratio: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations ``(H, b)`` of an alignment term without the directions it
+    constrains more than ``ratio`` times worse than its best (standard deviations, compared as
+    :func:`constraint` does, rotations as motion at ``depth_m``): there its information and its
+    gradient are set to zero, so another term decides alone. Depth is blind along a corridor
+    or a wall filling the view, and what little it says there comes from a few pixels at depth
+    edges and the model's bias (a sub-millimetre bias moves the estimate by about the bias
+    times the ratio), not from the noise its weights assume."""
+    s, vals, vecs = _metric_eigen(H, depth_m)
+    strong = vals >= vals[-1] / ratio**2
+    if strong.all():
+        return H, b
+    V = vecs[:, strong]
+    Hs = (V * vals[strong]) @ V.T
+    bs = V @ (V.T @ (b * s))
+    return Hs / s[:, None] / s[None, :], bs / s
 
 
 def depth_constraint(

@@ -38,6 +38,28 @@ def test_colour_resolves_sliding_along_a_flat_wall():
     assert joint.fitness > 0.8
 
 
+def test_where_depth_is_blind_colour_decides_alone():
+    """Exact depth of a textured wall whose target carries an artefact (a ramp 8 px wide and
+    2 cm high, as a model's smeared edge): the ramp's residuals are few, but exact depth weighs
+    them ~100x over colour, and they drag the pose along the wall (measured: 32 mm off). With
+    the geometric term left out of the directions it constrains 40x worse than its best,
+    colour holds the slide (measured: 1.2 mm, the ramp's pull on the strong directions)."""
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
+    T_a = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 2.0], up=(0, -1, 0))
+    motion = exp_se3(np.array([0.0, 0.0, np.radians(1.0), 0.02, -0.01, 0.0]))
+    da, ca = _textured_wall(K, 320, 240, T_a)
+    db, cb = _textured_wall(K, 320, 240, T_a @ motion)
+    da[:, 200:208] -= np.linspace(0.0, 0.02, 8, dtype=np.float32)[None, :]
+    target = RgbdImage(da, grey(ca), K, 3)
+    source = RgbdImage(db, grey(cb), K, 3)
+    errors = {}
+    for ratio in (0.0, 40.0):
+        res = joint_align(source, target, np.eye(4), [6, 4, 2], degenerate_ratio=ratio)
+        errors[ratio] = translation_norm(inv_T(motion) @ res.T_target_source)
+    assert errors[0.0] > 0.01, errors  # every direction to both terms: the ramp drags it
+    assert errors[40.0] < 0.002, errors
+
+
 def test_colour_term_only_where_colour_is_registered(tmp_path):
     """7-Scenes (also converted to the TUM layout, its pose/ files kept) keeps the depth-only
     path: its colour camera is not registered to depth."""

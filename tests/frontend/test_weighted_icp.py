@@ -14,6 +14,7 @@ from slam.frontend.weighted_icp import (
     constraint,
     depth_constraint,
     weighted_point_to_plane,
+    without_blind_directions,
 )
 from slam.frontend.weighted_icp import vertex_map as _vertex_map
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
@@ -104,3 +105,33 @@ def test_a_depth_image_says_how_blind_its_geometry_is_before_any_alignment():
     assert wall.ratio > 1e3 and corner.ratio < 15
     cut = depth_constraint(_render(CORNER, np.eye(4)), K, 0.5, noise)  # nothing within 0.5 m
     assert cut.ratio == float("inf")
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.lists(st.floats(-1.0, 1.0), min_size=36, max_size=36),
+    st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6),
+    st.floats(0.5, 5.0),
+)
+def test_blind_directions_lose_their_information_and_gradient(a, g, depth_m):
+    """The information of a term minus its blind directions: what a strong direction says is
+    kept exactly, a blind one says nothing, and the result stays symmetric positive
+    semi-definite."""
+    rng_basis, _ = np.linalg.qr(np.array(a).reshape(6, 6) + 3 * np.eye(6))
+    s = np.array([1.0 / depth_m] * 3 + [1.0] * 3)  # rotations compare as motion at depth_m
+    vals = np.array([1e-6, 1e-5, 1.0, 2.0, 5.0, 10.0])  # two directions ~1000x weaker (std)
+    Hs = (rng_basis * vals) @ rng_basis.T
+    H = Hs / s[:, None] / s[None, :]
+    b = np.array(g)
+    H2, b2 = without_blind_directions(H, b, depth_m, 40.0)
+    strong, blind = rng_basis[:, 2:], rng_basis[:, :2]
+    Hs2 = H2 * s[:, None] * s[None, :]
+    np.testing.assert_allclose(strong.T @ Hs2 @ strong, strong.T @ Hs @ strong, atol=1e-9)
+    np.testing.assert_allclose(blind.T @ Hs2, 0.0, atol=1e-9)
+    np.testing.assert_allclose(blind.T @ (b2 * s), 0.0, atol=1e-9)
+    np.testing.assert_allclose(strong.T @ (b2 * s), strong.T @ (b * s), atol=1e-9)
+    np.testing.assert_allclose(H2, H2.T, atol=1e-9)
+    assert np.linalg.eigvalsh(Hs2).min() > -1e-9
+    # nothing is blind at a looser ratio: the equations come back as they were
+    H3, b3 = without_blind_directions(H, b, depth_m, 1e4)
+    assert H3 is H and b3 is b
