@@ -138,6 +138,14 @@ class TrackingConfig:
     # weak direction by the model's own sub-millimetre bias times about the ratio (wall rows:
     # 11 mm a frame at ratios 22-27; benchmarks/self_render_bias.py)
     photometric_ratio: float = 20.0
+    # the colour a frame is aligned to against the model: "model", the TSDF's own ray-cast
+    # colour, or "keyframe", the last keyframe's image warped into the model's view by the
+    # model's depth. A TSDF's colour is smeared (aligned from the true pose to a model of its
+    # 10 previous frames, a fast corridor's frame lands 1.8 mm off with the model's colour,
+    # 0.2-0.4 mm with its own image: benchmarks/model_colour_bias.py). "keyframe" halves the fast walls' drift and the exact rows',
+    # but the blind direction then follows each keyframe's error: a fast corridor and two halls
+    # drift 25-70% more (docs/benchmarks.md, session 17), so it is not the default
+    photometric_reference: str = "model"
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
     # robustness: a frame with less usable depth than this fraction of its pixels is lost
@@ -360,6 +368,7 @@ class SlamConfig:
             (t.motion_check_photometric_weight >= 0, "tracking.motion_check_photometric_weight", t.motion_check_photometric_weight, ">= 0"),
             (t.degenerate_ratio >= 1, "tracking.degenerate_ratio", t.degenerate_ratio, ">= 1"),
             (t.photometric_ratio >= 1, "tracking.photometric_ratio", t.photometric_ratio, ">= 1"),
+            (t.photometric_reference in ("keyframe", "model"), "tracking.photometric_reference", t.photometric_reference, '"keyframe" or "model"'),
             (t.depth_noise_quadratic >= 0, "tracking.depth_noise_quadratic", t.depth_noise_quadratic, ">= 0"),
             (t.max_correspondence_m > 0, "tracking.max_correspondence_m", t.max_correspondence_m, "> 0"),
             (t.huber_delta_m > 0, "tracking.huber_delta_m", t.huber_delta_m, "> 0"),

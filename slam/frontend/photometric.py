@@ -167,6 +167,39 @@ def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out.reshape(rows * cols, -1)[:n]
 
 
+def warp_intensity(
+    depth_m: np.ndarray,
+    K: np.ndarray,
+    T_src_dst: np.ndarray,
+    src_intensity: np.ndarray,
+    src_depth_m: np.ndarray,
+    gate_m: float,
+) -> np.ndarray:
+    """A source view's intensity seen at the pixels of a destination view of depth ``depth_m``
+    (same intrinsics ``K``): each pixel's point moved into the source camera by ``T_src_dst``,
+    projected and sampled bilinearly. NaN where the destination has no depth, or the point
+    falls outside the source image or the source's depth there differs by more than
+    ``gate_m`` (occluded, or not seen)."""
+    h, w = depth_m.shape
+    V = vertex_map(np.asarray(depth_m, np.float32), K).reshape(-1, 3)
+    R, t = T_src_dst[:3, :3].astype(np.float32), T_src_dst[:3, 3].astype(np.float32)
+    Q = V @ R.T + t
+    z = Q[:, 2]
+    ok = (V[:, 2] > 0) & (z > 1e-3)
+    inv_z = np.float32(1.0) / np.where(ok, z, np.float32(1.0))
+    u = np.float32(K[0, 0]) * Q[:, 0] * inv_z + np.float32(K[0, 2])
+    v = np.float32(K[1, 1]) * Q[:, 1] * inv_z + np.float32(K[1, 2])
+    hs, ws = src_depth_m.shape
+    ok &= (u >= 0) & (u <= ws - 1) & (v >= 0) & (v <= hs - 1)
+    idx = np.flatnonzero(ok)
+    zs = src_depth_m[np.rint(v[idx]).astype(np.int64), np.rint(u[idx]).astype(np.int64)]
+    idx = idx[np.abs(zs - z[idx]) < gate_m]
+    out = np.full(h * w, np.nan, np.float32)
+    img = np.ascontiguousarray(src_intensity, np.float32)[..., None]
+    out[idx] = _sample(img, u[idx], v[idx])[:, 0]
+    return out.reshape(h, w)
+
+
 def _huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
     a = np.abs(r)
     return np.where(a <= delta, np.float32(1.0), np.float32(delta) / np.maximum(a, 1e-12))
@@ -210,6 +243,11 @@ def _photometric_equations(
     and its gradients), residuals less their median (a global brightness offset), Huber
     weights at 1.345 robust scales, times ``weight``."""
     smp = _sample(photo, uf, vf)
+    seen = np.isfinite(smp).all(axis=1)  # a warped target (warp_intensity) is NaN where unseen
+    if not seen.all():
+        smp, intensity, Qp, inv_z = smp[seen], intensity[seen], Qp[seen], inv_z[seen]
+        if len(smp) < 6:
+            return np.zeros((6, 6)), np.zeros(6)
     rp = smp[:, 0] - intensity
     rp -= np.float32(np.median(rp))  # global brightness offset
     s_p = _robust_scale(rp, min_scale)

@@ -43,6 +43,7 @@ from slam.frontend.features import OrbExtractor
 from slam.frontend.frame import PreparedFrame, icp_depth_range
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
+from slam.frontend.photometric import RgbdImage
 from slam.frontend.pointcloud import depth_pyramid
 from slam.geometry import (
     exp_se3,
@@ -101,6 +102,10 @@ class TrackerState:
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
     recent_overlaps: list[float] = field(default_factory=list)  # of the last tracked frames
+    # the last keyframe's depth and grey pyramids and pose: the colour frames are aligned to
+    # against the model (tracking.photometric_reference: keyframe), None without colour
+    reference: RgbdImage | None = None
+    T_world_reference: np.ndarray | None = None
 
     @property
     def velocity_known(self) -> bool:
@@ -174,9 +179,13 @@ class TrackerState:
     def to_dict(self) -> dict[str, Any]:
         """Plain data and arrays; keyframes by id (their owner saves them once). The arrays
         are never modified in place (each frame replaces them), so this is a snapshot."""
-        prev = self.prev_features
+        prev, ref = self.prev_features, self.reference
         return {
             "T_world_prev": self.T_world_prev,
+            "reference": None if ref is None else {
+                "depth_m": ref.depth[0], "grey": ref.intensity[0], "K": ref.K[0],
+                "T_world_cam": self.T_world_reference,
+            },
             "velocity": self.velocity,
             "prev_depth": self.prev_depth,
             "prev_features": None if prev is None else prev.to_state(),
@@ -190,15 +199,20 @@ class TrackerState:
         d: dict[str, Any], keyframes_by_id: dict[int, Keyframe], levels: int
     ) -> TrackerState:
         """The state :meth:`to_dict` saved; the ICP pyramid of the previous depth (``levels``
-        levels) is rebuilt, the joint-alignment pyramids are not (they were not saved)."""
+        levels) and the reference's pyramids are rebuilt, the previous frame's joint-alignment
+        pyramids are not (they were not saved)."""
         missing = [i for i in d["keyframes"] if int(i) not in keyframes_by_id]
         if missing:
             raise SlamError(
                 f"tracker state refers to keyframes {missing[:5]} that were not loaded; pass "
                 "every keyframe of the checkpoint (Keyframe.from_state) in keyframes_by_id"
             )
-        prev_depth, prev = d["prev_depth"], d["prev_features"]
+        prev_depth, prev, ref = d["prev_depth"], d["prev_features"], d.get("reference")
         return TrackerState(
+            reference=None
+            if ref is None
+            else RgbdImage(ref["depth_m"], ref["grey"], ref["K"], levels),
+            T_world_reference=None if ref is None else ref["T_world_cam"],
             T_world_prev=d["T_world_prev"],
             prev_features=None if prev is None else Keyframe.from_state(prev),
             prev_depth=prev_depth,
@@ -278,7 +292,7 @@ class Tracker:
             status.ransac_inliers = evidence.inliers
         feats = p.features
         st.restart(p, T, feats)
-        st.add_keyframe(p, T, feats, segment)
+        self._add_keyframe(p, T, feats, segment)
         status.keyframe = True
         status.ms = (time.perf_counter() - t0) * 1e3 + (p.prep_ms if p is prepared else 0.0)
         return status
@@ -356,6 +370,7 @@ class Tracker:
             prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
         att = Attempt(p, status, st.T_world_prev, velocity, large, verify, dt_ratio, first_step)
         att.prev_depth, att.prev_frame = prev, st.prev_frame
+        att.reference, att.T_world_reference = st.reference, st.T_world_reference
         status.constraint_ratio = round(p.constraint_ratio, 2)
         # depth is blind along one direction, or weak along it while the motion is small
         # enough for the photometric term (not a fast, RANSAC-seeded step: on frames 0.66 s
@@ -516,11 +531,23 @@ class Tracker:
                 or (status.path.startswith("ransac") and not att.first_step)
                 or att.verify
             ):
-                st.add_keyframe(p, T, att.features(), status.segment)
+                self._add_keyframe(p, T, att.features(), status.segment)
                 status.keyframe = True
         return T
 
     # --- helpers
+    def _add_keyframe(
+        self, p: PreparedFrame, T: np.ndarray, feats: FeatureSet | None, segment: int
+    ) -> None:
+        """The frame becomes the next keyframe and, with registered colour, the reference whose
+        image the joint alignment against the model warps into the model's view."""
+        st = self.state
+        st.add_keyframe(p, T, feats, segment)
+        image = None  # without registered colour: the model's own colour
+        if self.cfg.photometric_reference == "keyframe":
+            image = p.photometric_image(len(self.cfg.iterations))
+        st.reference, st.T_world_reference = image, None if image is None else T.copy()
+
     def _candidates(self) -> list[Keyframe]:
         return self.state.ransac_candidates(self.cfg.relocalisation_keyframes)
 

@@ -1,6 +1,6 @@
 import numpy as np
 
-from slam.frontend.photometric import RgbdImage, grey, joint_align
+from slam.frontend.photometric import RgbdImage, grey, joint_align, warp_intensity
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from tests.conftest import look_at
 
@@ -58,6 +58,25 @@ def test_where_depth_is_blind_colour_decides_alone():
         errors[ratio] = translation_norm(inv_T(motion) @ res.T_target_source)
     assert errors[0.0] > 0.01, errors  # every direction to both terms: the ramp drags it
     assert errors[40.0] < 0.002, errors
+
+
+def test_a_warped_view_has_the_colour_of_the_view_it_came_from():
+    """A view's intensity warped to the pixels of another view through that view's depth:
+    where the source saw the surface, the other view's own intensity; NaN outside the source's
+    image and where the source's depth disagrees (occluded)."""
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
+    T_a = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 2.0], up=(0, -1, 0))
+    T_a_b = exp_se3(np.array([0.0, 0.0, np.radians(1.0), 0.2, -0.01, 0.0]))  # 20 cm aside
+    da, ca = _textured_wall(K, 320, 240, T_a)
+    db, cb = _textured_wall(K, 320, 240, T_a @ T_a_b)
+    warped = warp_intensity(db, K, T_a_b, grey(ca), da, 0.05)
+    seen = np.isfinite(warped)
+    assert 0.7 < seen.mean() < 0.95  # b sees a strip of the wall a does not
+    assert np.abs(warped[seen] - grey(cb)[seen]).mean() < 0.005
+    assert not seen[:, -5:].any()  # b's right edge is beyond a's image
+    occluded = da.copy()
+    occluded[:, :160] -= 0.5  # something 0.5 m in front of the wall in a's left half
+    assert np.isfinite(warp_intensity(db, K, T_a_b, grey(ca), occluded, 0.05)).mean() < 0.5
 
 
 def test_colour_term_only_where_colour_is_registered(tmp_path):
