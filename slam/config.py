@@ -142,9 +142,10 @@ class TrackingConfig:
     # colour, or "keyframe", the last keyframe's image warped into the model's view by the
     # model's depth. A TSDF's colour is smeared (aligned from the true pose to a model of its
     # 10 previous frames, a fast corridor's frame lands 1.8 mm off with the model's colour,
-    # 0.2-0.4 mm with its own image: benchmarks/model_colour_bias.py). "keyframe" halves the fast walls' drift and the exact rows',
-    # but the blind direction then follows each keyframe's error: a fast corridor and two halls
-    # drift 25-70% more (docs/benchmarks.md, session 17), so it is not the default
+    # 0.2-0.4 mm with its own image: benchmarks/model_colour_bias.py). "keyframe" halves the
+    # fast walls' drift and the exact rows', but the blind direction then follows each
+    # keyframe's error: a fast corridor and two halls drift 25-70% more (docs/benchmarks.md,
+    # session 17), so it is not the default
     photometric_reference: str = "model"
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
