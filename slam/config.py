@@ -138,15 +138,18 @@ class TrackingConfig:
     # weak direction by the model's own sub-millimetre bias times about the ratio (wall rows:
     # 11 mm a frame at ratios 22-27; benchmarks/self_render_bias.py)
     photometric_ratio: float = 20.0
-    # the colour a frame is aligned to against the model: "model", the TSDF's own ray-cast
-    # colour, or "keyframe", the last keyframe's image warped into the model's view by the
-    # model's depth. A TSDF's colour is smeared (aligned from the true pose to a model of its
-    # 10 previous frames, a fast corridor's frame lands 1.8 mm off with the model's colour,
-    # 0.2-0.4 mm with its own image: benchmarks/model_colour_bias.py). "keyframe" halves the
-    # fast walls' drift and the exact rows', but the blind direction then follows each
-    # keyframe's error: a fast corridor and two halls drift 25-70% more (docs/benchmarks.md,
-    # session 17), so it is not the default
-    photometric_reference: str = "model"
+    # the colour a frame is aligned to against the model: "keyframe", the last keyframes'
+    # images, each warped into the model's view by the model's depth and averaged, or "model",
+    # the TSDF's own ray-cast colour. A TSDF's colour is smeared (aligned from the true pose to
+    # a model of its 10 previous frames, a fast corridor's frame lands 1.8 mm off with the
+    # model's colour, 0.2-0.4 mm with its own image: benchmarks/model_colour_bias.py). One
+    # keyframe's image carries that keyframe's error along the blind direction (a fast corridor
+    # and two halls drifted 25-70% more with 1 than with the model's colour); the mean of
+    # photometric_keyframes of them averages it: on the scene matrix with 5, fast walls and
+    # corridors 0.008-0.009 -> 0.003-0.006 m, fast halls 0.016 -> 0.010-0.013 (median), no row
+    # worse beyond its spread (docs/benchmarks.md, session 18)
+    photometric_reference: str = "keyframe"
+    photometric_keyframes: int = 5
     keyframe_translation_m: float = 0.15
     keyframe_rotation_deg: float = 12.0
     # robustness: a frame with less usable depth than this fraction of its pixels is lost
@@ -370,6 +373,7 @@ class SlamConfig:
             (t.degenerate_ratio >= 1, "tracking.degenerate_ratio", t.degenerate_ratio, ">= 1"),
             (t.photometric_ratio >= 1, "tracking.photometric_ratio", t.photometric_ratio, ">= 1"),
             (t.photometric_reference in ("keyframe", "model"), "tracking.photometric_reference", t.photometric_reference, '"keyframe" or "model"'),
+            (t.photometric_keyframes >= 1, "tracking.photometric_keyframes", t.photometric_keyframes, "at least 1"),
             (t.depth_noise_quadratic >= 0, "tracking.depth_noise_quadratic", t.depth_noise_quadratic, ">= 0"),
             (t.max_correspondence_m > 0, "tracking.max_correspondence_m", t.max_correspondence_m, "> 0"),
             (t.huber_delta_m > 0, "tracking.huber_delta_m", t.huber_delta_m, "> 0"),

@@ -19,7 +19,7 @@ from slam.frontend.frame import PreparedFrame, depth_noise
 from slam.frontend.icp import IcpResult, projective_agreement
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
-from slam.frontend.photometric import RgbdImage, grey, warp_intensity
+from slam.frontend.photometric import RgbdImage, grey, mean_warped_intensity
 from slam.frontend.ransac import RansacResult
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import FeatureSet, Keyframe
@@ -51,11 +51,10 @@ class Attempt:
     dt_s: float = 1.0 / 30.0  # seconds since the previous frame (a 30 Hz sensor's when unknown)
     prev_depth: np.ndarray | list[np.ndarray] | None = None
     prev_frame: PreparedFrame | None = None  # the previous frame (its colour, on demand)
-    # the image (depth + grey pyramids) whose colour model alignments warp into the model's
-    # view, and its pose (the last keyframe's: tracking.photometric_reference); None: the
-    # model's own colour
-    reference: RgbdImage | None = None
-    T_world_reference: np.ndarray | None = None
+    # the images (depth + grey pyramids) and poses whose colour model alignments warp into the
+    # model's view and average (the last keyframes': tracking.photometric_reference); empty:
+    # the model's own colour
+    references: list[tuple[RgbdImage, np.ndarray]] = field(default_factory=list)
     feats: FeatureSet | None = None  # the frame's ORB features, once a stage used them
     ransac: RansacResult | None = None  # the seed's / rescue's RANSAC with the most inliers
     tried: list[np.ndarray] = field(default_factory=list)  # model-ICP starts (T_world_cam)
@@ -138,19 +137,17 @@ def align_to_model(
     p = att.frame
     w, h = p.size
     joint = _joint_weight(cfg, att)
-    ref = att.reference if joint is not None else None
+    refs = att.references if joint is not None else []
     render = model.raycast(
-        p.K_track, w, h, T_world_guess, False, joint is not None and ref is None,
+        p.K_track, w, h, T_world_guess, False, joint is not None and not refs,
         frustum_depth_m=p.depth_m,
     )  # fmt: skip
-    if ref is not None and att.T_world_reference is not None:
-        # the reference's real image seen from the guess, through the model's depth: a TSDF's
-        # own colour is smeared along the rays it was fused from (unseen pixels are NaN)
-        assert ref.intensity is not None
-        grey_ref = warp_intensity(
-            render.depth_m, p.K_track, inv_T(att.T_world_reference) @ T_world_guess,
-            ref.intensity[0], ref.depth[0], cfg.max_correspondence_m,
-        )  # fmt: skip
+    if refs:
+        # the references' real images seen from the guess, through the model's depth: a
+        # TSDF's own colour is smeared along the rays it was fused from (unseen pixels: NaN)
+        grey_ref = mean_warped_intensity(
+            render.depth_m, p.K_track, T_world_guess, refs, cfg.max_correspondence_m
+        )
         target = RgbdImage(render.depth_m, grey_ref, p.K_track, len(cfg.iterations))
         icp = p.joint_to(target, np.eye(4), cfg, joint)
     elif joint is not None and render.color is not None:

@@ -35,7 +35,7 @@ from slam.camera import scale_intrinsics
 from slam.frontend.icp import IcpResult
 from slam.frontend.pointcloud import depth_pyramid, normal_map
 from slam.frontend.weighted_icp import vertex_map, without_blind_directions
-from slam.geometry import exp_se3
+from slam.geometry import exp_se3, inv_T
 
 _MAD = 1.4826
 
@@ -180,8 +180,17 @@ def warp_intensity(
     projected and sampled bilinearly. NaN where the destination has no depth, or the point
     falls outside the source image or the source's depth there differs by more than
     ``gate_m`` (occluded, or not seen)."""
-    h, w = depth_m.shape
     V = vertex_map(np.asarray(depth_m, np.float32), K).reshape(-1, 3)
+    out = _warp_vertices(V, K, T_src_dst, (src_intensity, src_depth_m), gate_m)
+    return out.reshape(depth_m.shape)
+
+
+def _warp_vertices(
+    V: np.ndarray, K: np.ndarray, T_src_dst: np.ndarray, src: tuple[np.ndarray, ...], gate_m: float
+) -> np.ndarray:
+    """:func:`warp_intensity` of the destination's vertices ``V`` (N x 3, z = 0: no depth)
+    from ``src`` (intensity, depth): N intensities."""
+    src_intensity, src_depth_m = src
     R, t = T_src_dst[:3, :3].astype(np.float32), T_src_dst[:3, 3].astype(np.float32)
     Q = V @ R.T + t
     z = Q[:, 2]
@@ -194,10 +203,37 @@ def warp_intensity(
     idx = np.flatnonzero(ok)
     zs = src_depth_m[np.rint(v[idx]).astype(np.int64), np.rint(u[idx]).astype(np.int64)]
     idx = idx[np.abs(zs - z[idx]) < gate_m]
-    out = np.full(h * w, np.nan, np.float32)
-    img = np.ascontiguousarray(src_intensity, np.float32)[..., None]
-    out[idx] = _sample(img, u[idx], v[idx])[:, 0]
-    return out.reshape(h, w)
+    out = np.full(len(V), np.nan, np.float32)
+    if len(idx):  # (the views may not overlap at all)
+        img = np.ascontiguousarray(src_intensity, np.float32)[..., None]
+        out[idx] = _sample(img, u[idx], v[idx])[:, 0]
+    return out
+
+
+def mean_warped_intensity(
+    depth_m: np.ndarray,
+    K: np.ndarray,
+    T_world_dst: np.ndarray,
+    views: list[tuple[RgbdImage, np.ndarray]],
+    gate_m: float,
+) -> np.ndarray:
+    """The mean of several views' intensities (``views``: image and ``T_world_cam``, each
+    with registered intensity and the intrinsics ``K`` at level 0) seen at the pixels of a
+    destination view of depth ``depth_m`` and pose ``T_world_dst`` (:func:`warp_intensity`);
+    each pixel averages the views that see it, NaN where none does."""
+    V = vertex_map(np.asarray(depth_m, np.float32), K).reshape(-1, 3)
+    total = np.zeros(len(V), np.float32)
+    count = np.zeros(len(V), np.float32)
+    for image, T_world_src in views:
+        assert image.intensity is not None
+        T_src_dst = inv_T(T_world_src) @ T_world_dst
+        warped = _warp_vertices(V, K, T_src_dst, (image.intensity[0], image.depth[0]), gate_m)
+        seen = np.isfinite(warped)
+        total += np.where(seen, warped, np.float32(0.0))
+        count += seen
+    out = np.full(len(V), np.nan, np.float32)
+    np.divide(total, count, out=out, where=count > 0)
+    return out.reshape(depth_m.shape)
 
 
 def _huber_weights(r: np.ndarray, delta: float) -> np.ndarray:

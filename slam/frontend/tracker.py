@@ -102,10 +102,10 @@ class TrackerState:
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
     recent_overlaps: list[float] = field(default_factory=list)  # of the last tracked frames
-    # the last keyframe's depth and grey pyramids and pose: the colour frames are aligned to
-    # against the model (tracking.photometric_reference: keyframe), None without colour
-    reference: RgbdImage | None = None
-    T_world_reference: np.ndarray | None = None
+    # the last keyframes' depth and grey pyramids and poses, oldest first: the colour frames
+    # are aligned to against the model (tracking.photometric_reference: keyframe); empty
+    # without colour
+    references: list[tuple[RgbdImage, np.ndarray]] = field(default_factory=list)
 
     @property
     def velocity_known(self) -> bool:
@@ -121,8 +121,10 @@ class TrackerState:
         )
 
     def restart(self, p: PreparedFrame, T_world_cam: np.ndarray, feats: FeatureSet | None) -> None:
-        """Tracking starts again at a frame with a known pose, from rest."""
+        """Tracking starts again at a frame with a known pose, from rest (the colour
+        references start again with it: a new segment's world is not the old one's)."""
         self.T_world_prev = T_world_cam
+        self.references = []
         self.velocity = np.eye(4)
         self.prev_depth = p.depth_m
         self.prev_pyramid = None
@@ -179,13 +181,13 @@ class TrackerState:
     def to_dict(self) -> dict[str, Any]:
         """Plain data and arrays; keyframes by id (their owner saves them once). The arrays
         are never modified in place (each frame replaces them), so this is a snapshot."""
-        prev, ref = self.prev_features, self.reference
+        prev = self.prev_features
         return {
             "T_world_prev": self.T_world_prev,
-            "reference": None if ref is None else {
-                "depth_m": ref.depth[0], "grey": ref.intensity[0], "K": ref.K[0],
-                "T_world_cam": self.T_world_reference,
-            },
+            "references": [
+                {"depth_m": im.depth[0], "grey": im.intensity[0], "K": im.K[0], "T_world_cam": T}
+                for im, T in self.references
+            ],
             "velocity": self.velocity,
             "prev_depth": self.prev_depth,
             "prev_features": None if prev is None else prev.to_state(),
@@ -199,7 +201,7 @@ class TrackerState:
         d: dict[str, Any], keyframes_by_id: dict[int, Keyframe], levels: int
     ) -> TrackerState:
         """The state :meth:`to_dict` saved; the ICP pyramid of the previous depth (``levels``
-        levels) and the reference's pyramids are rebuilt, the previous frame's joint-alignment
+        levels) and the references' pyramids are rebuilt, the previous frame's joint-alignment
         pyramids are not (they were not saved)."""
         missing = [i for i in d["keyframes"] if int(i) not in keyframes_by_id]
         if missing:
@@ -207,12 +209,14 @@ class TrackerState:
                 f"tracker state refers to keyframes {missing[:5]} that were not loaded; pass "
                 "every keyframe of the checkpoint (Keyframe.from_state) in keyframes_by_id"
             )
-        prev_depth, prev, ref = d["prev_depth"], d["prev_features"], d.get("reference")
+        prev_depth, prev = d["prev_depth"], d["prev_features"]
+        # checkpoints of session 17 saved one "reference" (or None)
+        refs = d.get("references", [r for r in [d.get("reference")] if r is not None])
         return TrackerState(
-            reference=None
-            if ref is None
-            else RgbdImage(ref["depth_m"], ref["grey"], ref["K"], levels),
-            T_world_reference=None if ref is None else ref["T_world_cam"],
+            references=[
+                (RgbdImage(r["depth_m"], r["grey"], r["K"], levels), r["T_world_cam"])
+                for r in refs
+            ],
             T_world_prev=d["T_world_prev"],
             prev_features=None if prev is None else Keyframe.from_state(prev),
             prev_depth=prev_depth,
@@ -370,7 +374,7 @@ class Tracker:
             prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
         att = Attempt(p, status, st.T_world_prev, velocity, large, verify, dt_ratio, first_step)
         att.prev_depth, att.prev_frame = prev, st.prev_frame
-        att.reference, att.T_world_reference = st.reference, st.T_world_reference
+        att.references = list(st.references)
         status.constraint_ratio = round(p.constraint_ratio, 2)
         # depth is blind along one direction, or weak along it while the motion is small
         # enough for the photometric term (not a fast, RANSAC-seeded step: on frames 0.66 s
@@ -539,14 +543,18 @@ class Tracker:
     def _add_keyframe(
         self, p: PreparedFrame, T: np.ndarray, feats: FeatureSet | None, segment: int
     ) -> None:
-        """The frame becomes the next keyframe and, with registered colour, the reference whose
-        image the joint alignment against the model warps into the model's view."""
+        """The frame becomes the next keyframe and, with registered colour, the newest of the
+        references whose images the joint alignment against the model warps into the model's
+        view and averages."""
         st = self.state
         st.add_keyframe(p, T, feats, segment)
         image = None  # without registered colour: the model's own colour
         if self.cfg.photometric_reference == "keyframe":
             image = p.photometric_image(len(self.cfg.iterations))
-        st.reference, st.T_world_reference = image, None if image is None else T.copy()
+        if image is None:
+            st.references = []
+        else:
+            st.references = (st.references + [(image, T.copy())])[-self.cfg.photometric_keyframes :]
 
     def _candidates(self) -> list[Keyframe]:
         return self.state.ransac_candidates(self.cfg.relocalisation_keyframes)

@@ -1,6 +1,12 @@
 import numpy as np
 
-from slam.frontend.photometric import RgbdImage, grey, joint_align, warp_intensity
+from slam.frontend.photometric import (
+    RgbdImage,
+    grey,
+    joint_align,
+    mean_warped_intensity,
+    warp_intensity,
+)
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from tests.conftest import look_at
 
@@ -77,6 +83,32 @@ def test_a_warped_view_has_the_colour_of_the_view_it_came_from():
     occluded = da.copy()
     occluded[:, :160] -= 0.5  # something 0.5 m in front of the wall in a's left half
     assert np.isfinite(warp_intensity(db, K, T_a_b, grey(ca), occluded, 0.05)).mean() < 0.5
+
+
+def test_warped_views_average_where_they_see_the_surface():
+    """Several views warped to one: each pixel is the mean of the views that see it (two
+    views of the same wall agree with the destination's own intensity; one darkened by 0.1
+    pulls the mean by 0.05 where both see, by 0.1 where only it does); NaN where none does,
+    and a view that sees nothing of it adds nothing."""
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
+    T_dst = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 2.0], up=(0, -1, 0))
+    T_left = T_dst @ exp_se3(np.array([0.0, 0.0, 0.0, -0.4, 0.0, 0.0]))
+    T_right = T_dst @ exp_se3(np.array([0.0, 0.0, 0.0, 0.4, 0.0, 0.0]))
+    T_away = look_at([0.0, 0.0, 0.0], [0.0, 0.0, -2.0], up=(0, -1, 0))  # faces away
+    d_dst, c_dst = _textured_wall(K, 320, 240, T_dst)
+    views = []
+    for T, offset in ((T_left, 0.0), (T_right, -0.1), (T_away, 0.0)):
+        d, c = _textured_wall(K, 320, 240, T_left if T is T_away else T)
+        views.append((RgbdImage(d, grey(c) + np.float32(offset), K, 1), T))
+    one = [warp_intensity(d_dst, K, inv_T(T) @ T_dst, im.intensity[0], im.depth[0], 0.05) for im, T in views[:2]]
+    mean = mean_warped_intensity(d_dst, K, T_dst, views, 0.05)
+    both = np.isfinite(one[0]) & np.isfinite(one[1])
+    only_right = ~np.isfinite(one[0]) & np.isfinite(one[1])
+    assert both.mean() > 0.3 and only_right.mean() > 0.05
+    assert np.abs(mean[both] - (grey(c_dst)[both] - 0.05)).mean() < 0.005
+    assert np.abs(mean[only_right] - (grey(c_dst)[only_right] - 0.1)).mean() < 0.005
+    assert np.array_equal(np.isfinite(mean), np.isfinite(one[0]) | np.isfinite(one[1]))
+    assert np.isnan(mean_warped_intensity(d_dst, K, T_dst, views[2:], 0.05)).all()
 
 
 def test_colour_term_only_where_colour_is_registered(tmp_path):

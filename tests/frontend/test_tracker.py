@@ -15,7 +15,7 @@ from slam.frontend import frame as frame_module
 from slam.frontend.alignment import align_from, align_to_model
 from slam.frontend.features import OrbExtractor
 from slam.frontend.icp import IcpResult
-from slam.frontend.tracker import Tracker, icp_depth_range, scale_motion
+from slam.frontend.tracker import Tracker, TrackerState, icp_depth_range, scale_motion
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import Keyframe
 from slam.mapping.submaps import SubmapMap
@@ -430,9 +430,9 @@ def test_model_alignment_warps_the_last_keyframes_colour(world, model):
     errors = {}
     for reference in ("keyframe", "model"):
         tracker = _tracker_at(world, 10, photometric_reference=reference)
-        assert (tracker.state.reference is not None) == (reference == "keyframe")
+        assert len(tracker.state.references) == (reference == "keyframe")
         if reference == "keyframe":  # the keyframe the tracker was reset at
-            np.testing.assert_allclose(tracker.state.T_world_reference, world.poses[10])
+            np.testing.assert_allclose(tracker.state.references[0][1], world.poses[10])
         errs = []
         for k in (11, 12, 14):
             att = tracker.predict(tracker.prepare(world.frame(k)))
@@ -443,6 +443,30 @@ def test_model_alignment_warps_the_last_keyframes_colour(world, model):
         errors[reference] = errs
     assert max(errors["keyframe"]) < 1e-3, errors
     assert np.mean(errors["keyframe"]) < 0.7 * np.mean(errors["model"]), errors
+
+
+def test_the_colour_references_are_the_last_keyframes_of_the_segment(world, model):
+    """tracking.photometric_keyframes of the newest keyframes' images are kept, oldest first;
+    a restart (a new segment, or a relocalised frame) starts them again. A checkpoint of
+    session 17 (one "reference") still loads."""
+    tracker = _tracker_at(world, 0, photometric_reference="keyframe", photometric_keyframes=2)
+    for i in (3, 6, 9):
+        tracker._add_keyframe(tracker.prepare(world.frame(i)), world.poses[i], None, 0)
+
+    def poses(references):  # which frames' poses the references have
+        return [int(np.argmin(np.abs(world.poses - T).sum((1, 2)))) for _, T in references]
+
+    assert poses(tracker.state.references) == [6, 9]
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    assert poses(att.references) == [6, 9]
+    state = tracker.state_dict()
+    old = {**state, "reference": state["references"][-1]}
+    del old["references"]
+    keyframes = {kf.id: kf for kf in tracker.state.keyframes}
+    loaded = TrackerState.from_dict(old, keyframes, 3)
+    assert poses(loaded.references) == [9]
+    tracker.reset(world.frame(150), world.poses[150], "reloc")
+    assert poses(tracker.state.references) == [150]
 
 
 def test_lost_status_and_colourless_frames(world):
@@ -505,12 +529,12 @@ def test_state_dict_round_trip_gives_the_same_next_result(world, model):
     b.load_state_dict(state, keyframes)
     assert b.state.keyframes == [keyframes[i] for i in state["keyframes"]]
     assert all(np.array_equal(x, y) for x, y in zip(b.state.prev_pyramid, a.state.prev_pyramid))
-    # the colour reference (the last keyframe's image) comes back with every pyramid level
-    ra, rb = a.state.reference, b.state.reference
-    assert ra is not None and rb is not None
-    assert np.array_equal(a.state.T_world_reference, b.state.T_world_reference)
-    for x, y in zip(ra.depth + ra.intensity + ra.K, rb.depth + rb.intensity + rb.K):
-        np.testing.assert_array_equal(x, y)
+    # the colour references (the last keyframes' images) come back with every pyramid level
+    assert len(a.state.references) == len(b.state.references) >= 1
+    for (ra, Ta), (rb, Tb) in zip(a.state.references, b.state.references):
+        assert np.array_equal(Ta, Tb)
+        for x, y in zip(ra.depth + ra.intensity + ra.K, rb.depth + rb.intensity + rb.K):
+            np.testing.assert_array_equal(x, y)
     # after a gap: RANSAC seeds, so the generator's state matters too
     # (Open3D's kernels are not deterministic: the same tracking twice, even by one tracker,
     # may differ by a pixel's correspondence, a few 1e-5 m; a different RANSAC draw would show
