@@ -210,7 +210,7 @@ class TrackerState:
                 "every keyframe of the checkpoint (Keyframe.from_state) in keyframes_by_id"
             )
         prev_depth, prev = d["prev_depth"], d["prev_features"]
-        # checkpoints of session 17 saved one "reference" (or None)
+        # checkpoints written before tracking.photometric_keyframes saved one "reference" (or None)
         refs = d.get("references", [r for r in [d.get("reference")] if r is not None])
         return TrackerState(
             references=[

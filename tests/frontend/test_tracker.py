@@ -447,8 +447,8 @@ def test_model_alignment_warps_the_last_keyframes_colour(world, model):
 
 def test_the_colour_references_are_the_last_keyframes_of_the_segment(world, model):
     """tracking.photometric_keyframes of the newest keyframes' images are kept, oldest first;
-    a restart (a new segment, or a relocalised frame) starts them again. A checkpoint of
-    session 17 (one "reference") still loads."""
+    a restart (a new segment, or a relocalised frame) starts them again. A checkpoint written
+    before photometric_keyframes existed (one "reference") still loads."""
     tracker = _tracker_at(world, 0, photometric_reference="keyframe", photometric_keyframes=2)
     for i in (3, 6, 9):
         tracker._add_keyframe(tracker.prepare(world.frame(i)), world.poses[i], None, 0)
