@@ -43,7 +43,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("system", ("slam.system", "slam.results", "slam.run_metrics")),
     ("run folder", ("slam.run_folder",)),
     ("applications", ("slam.pipeline", "slam.api", "slam.chunked", "slam.tools", "slam.synthetic", "slam.demo")),
-    ("cli", ("slam.cli", "slam.cli_eval", "slam.__main__", "slam")),
+    ("cli", ("slam.cli", "slam.cli_app", "slam.cli_eval", "slam.__main__", "slam")),
 ]
 #: pairs in one layer that must not import each other
 SIBLINGS = [("slam.frontend", "slam.mapping")]

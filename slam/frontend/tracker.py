@@ -30,21 +30,19 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 
 from slam.config import TrackingConfig
 from slam.data.base import Frame
-from slam.errors import ConfigError, SlamError, TrackingError
+from slam.errors import ConfigError, TrackingError
 from slam.frontend.alignment import Attempt, align_from, align_to_model
 from slam.frontend.features import OrbExtractor
 from slam.frontend.frame import PreparedFrame, icp_depth_range
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
-from slam.frontend.photometric import RgbdImage
-from slam.frontend.pointcloud import depth_pyramid
+from slam.frontend.tracker_state import TrackerState
 from slam.geometry import (
     exp_se3,
     inv_T,
@@ -87,145 +85,6 @@ def usable_depth_fraction(depth_m: np.ndarray, depth_min_m: float, depth_max_m: 
     return float(np.count_nonzero((depth_m > depth_min_m) & (depth_m < depth_max_m))) / max(
         depth_m.size, 1
     )
-
-
-@dataclass
-class TrackerState:
-    """What tracking carries from frame to frame (saved/restored for checkpoints)."""
-
-    T_world_prev: np.ndarray | None = None
-    prev_features: Keyframe | None = None  # the previous frame's features, when it computed them
-    prev_depth: np.ndarray | None = None  # the previous frame's depth at tracking resolution
-    prev_pyramid: list[np.ndarray] | None = None  # ... and its ICP pyramid (not saved)
-    prev_frame: PreparedFrame | None = None  # ... the prepared frame itself (not saved)
-    t_prev: float | None = None  # ... and its timestamp
-    velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
-    keyframes: list[Keyframe] = field(default_factory=list)
-    recent_overlaps: list[float] = field(default_factory=list)  # of the last tracked frames
-    # the last keyframes' depth and grey pyramids and poses, oldest first: the colour frames
-    # are aligned to against the model (tracking.photometric_reference: keyframe); empty
-    # without colour
-    references: list[tuple[RgbdImage, np.ndarray]] = field(default_factory=list)
-
-    @property
-    def velocity_known(self) -> bool:
-        """A step has been tracked since tracking (re)started: before it, the camera's motion
-        is unknown, not zero (a sequence may start mid-pan)."""
-        return len(self.recent_overlaps) > 0
-
-    def ransac_candidates(self, n_keyframes: int) -> list[Keyframe]:
-        """What RANSAC tries against: the previous frame, then the ``n_keyframes`` most recent
-        keyframes (newest first)."""
-        return ([self.prev_features] if self.prev_features else []) + list(
-            reversed(self.keyframes[-n_keyframes:])
-        )
-
-    def restart(self, p: PreparedFrame, T_world_cam: np.ndarray, feats: FeatureSet | None) -> None:
-        """Tracking starts again at a frame with a known pose, from rest (the colour
-        references start again with it: a new segment's world is not the old one's)."""
-        self.T_world_prev = T_world_cam
-        self.references = []
-        self.velocity = np.eye(4)
-        self.prev_depth = p.depth_m
-        self.prev_pyramid = None
-        self.prev_frame = p
-        self.t_prev = p.timestamp
-        self.recent_overlaps = []
-        self.prev_features = _features_keyframe(p, T_world_cam, feats)
-
-    def advance(
-        self,
-        p: PreparedFrame,
-        T_world_cam: np.ndarray,
-        velocity: np.ndarray,
-        overlap: float,
-        feats: FeatureSet | None,
-    ) -> None:
-        """A tracked frame becomes the previous one (``velocity``: its motion per usual frame
-        interval; ``overlap``: with the model, for the suspect-overlap check of the next)."""
-        self.recent_overlaps = (self.recent_overlaps + [float(overlap)])[-10:]
-        self.velocity = velocity
-        self.T_world_prev = T_world_cam
-        self.prev_depth = p.depth_m
-        self.prev_pyramid = p.pyramid
-        self.prev_frame = p
-        self.t_prev = p.timestamp
-        self.prev_features = _features_keyframe(p, T_world_cam, feats)
-
-    def forget_previous(self) -> None:
-        """The previous frame cannot be aligned to any more; pose and velocity stay."""
-        self.prev_depth = None
-        self.prev_pyramid = None
-        self.prev_frame = None
-        self.prev_features = None
-
-    def add_keyframe(
-        self, p: PreparedFrame, T_world_cam: np.ndarray, feats: FeatureSet | None, segment: int
-    ) -> Keyframe:
-        """The frame as the next keyframe (numbered in order), with its tracking depth."""
-        feats = feats or FeatureSet.empty()
-        K = p.K_track.copy()
-        kf = Keyframe(
-            p.index,
-            p.timestamp,
-            T_world_cam.copy(),
-            feats,
-            p.depth_m,
-            K,
-            len(self.keyframes),
-            segment,
-        )
-        self.keyframes.append(kf)
-        return kf
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain data and arrays; keyframes by id (their owner saves them once). The arrays
-        are never modified in place (each frame replaces them), so this is a snapshot."""
-        prev = self.prev_features
-        return {
-            "T_world_prev": self.T_world_prev,
-            "references": [
-                {"depth_m": im.depth[0], "grey": im.intensity[0], "K": im.K[0], "T_world_cam": T}
-                for im, T in self.references
-            ],
-            "velocity": self.velocity,
-            "prev_depth": self.prev_depth,
-            "prev_features": None if prev is None else prev.to_state(),
-            "recent_overlaps": list(self.recent_overlaps),
-            "t_prev": self.t_prev,
-            "keyframes": [kf.id for kf in self.keyframes],
-        }
-
-    @staticmethod
-    def from_dict(
-        d: dict[str, Any], keyframes_by_id: dict[int, Keyframe], levels: int
-    ) -> TrackerState:
-        """The state :meth:`to_dict` saved; the ICP pyramid of the previous depth (``levels``
-        levels) and the references' pyramids are rebuilt, the previous frame's joint-alignment
-        pyramids are not (they were not saved)."""
-        missing = [i for i in d["keyframes"] if int(i) not in keyframes_by_id]
-        if missing:
-            raise SlamError(
-                f"tracker state refers to keyframes {missing[:5]} that were not loaded; pass "
-                "every keyframe of the checkpoint (Keyframe.from_state) in keyframes_by_id"
-            )
-        prev_depth, prev = d["prev_depth"], d["prev_features"]
-        # checkpoints written before tracking.photometric_keyframes saved one "reference" (or None)
-        refs = d.get("references", [r for r in [d.get("reference")] if r is not None])
-        return TrackerState(
-            references=[
-                (RgbdImage(r["depth_m"], r["grey"], r["K"], levels), r["T_world_cam"])
-                for r in refs
-            ],
-            T_world_prev=d["T_world_prev"],
-            prev_features=None if prev is None else Keyframe.from_state(prev),
-            prev_depth=prev_depth,
-            prev_pyramid=None if prev_depth is None else depth_pyramid(prev_depth, levels),
-            velocity=d["velocity"],
-            keyframes=[keyframes_by_id[int(i)] for i in d["keyframes"]],
-            recent_overlaps=list(d["recent_overlaps"]),
-            t_prev=d.get("t_prev"),
-        )
 
 
 class Evidence(Protocol):
@@ -571,15 +430,6 @@ class Tracker:
         ``Keyframe.from_state``): the next ``track`` gives what it would have given."""
         self.state = TrackerState.from_dict(state, keyframes_by_id, len(self.cfg.iterations))
         self._rng.bit_generator.state = state["rng"]
-
-
-def _features_keyframe(
-    p: PreparedFrame, T_world_cam: np.ndarray, feats: FeatureSet | None
-) -> Keyframe | None:
-    """The frame as the next frame's RANSAC candidate (None without features)."""
-    if feats is None or len(feats) == 0:
-        return None
-    return Keyframe(p.index, p.timestamp, T_world_cam.copy(), feats)
 
 
 def _warn_unconfirmed(att: Attempt, departure_m: float, bound_m: float, why: str) -> None:
