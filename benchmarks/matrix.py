@@ -12,7 +12,8 @@ source tree, e.g. a worktree of main, so old and new run the very same sequences
 records odometry and final ATE (RMSE, SE(3)-aligned), the per-frame step error of odometry
 (translation error of each frame-to-frame motion against ground truth: median and worst, and
 their ratio), lost frames, loops and fps. One row per kind is also rendered exact (no sensor
-noise: ``EXACT``). Synthetic sequences are generated once into the cache
+noise: ``EXACT``), and each real sequence recorded at video rate runs again on every third
+frame (``-x3``: real motion three times as fast). Synthetic sequences are generated once into the cache
 folder (``$SLAM_CACHE_DIR``/matrix). Writes ``benchmarks/results/matrix[-TAG].json`` and prints a
 Markdown table.
 
@@ -44,6 +45,8 @@ SEEDS = (0, 1)
 #: per kind, seed 0, and that corridor: (kind, speed, seed).
 EXACT = tuple((kind, 2.0, 0) for kind in KINDS) + (("corridor", 2.0, 1),)
 FRAMES = 240
+#: Real sequences recorded at video rate run a second time on every REAL_STRIDE-th frame.
+REAL_STRIDE = 3
 #: A change within this of a row's value is noise when the spread was not measured.
 DEFAULT_SPREAD = (0.10, 0.0005)
 
@@ -83,13 +86,53 @@ def synthetic_rows(
 
 
 def real_rows() -> list[Row]:
+    """Every shared real sequence, then each one recorded at video rate (median frame interval
+    under 50 ms) again at ``REAL_STRIDE`` times its speed: every ``REAL_STRIDE``-th frame
+    (``<name>-x3``), real motion faster than any shared recording."""
     if not SHARED.is_dir():
         return []
-    return [
-        Row(p.name, p, False)
-        for p in sorted(SHARED.iterdir())
-        if p.is_dir() and (p / "groundtruth.txt").is_file()
-    ]
+    seqs = [p for p in sorted(SHARED.iterdir()) if p.is_dir() and (p / "groundtruth.txt").is_file()]
+    rows = [Row(p.name, p, False) for p in seqs]
+    for p in seqs:
+        if _median_interval_s(p / "depth.txt") < 0.05:
+            rows.append(Row(f"{p.name}-x{REAL_STRIDE}", strided_copy(p, REAL_STRIDE), False))
+    return rows
+
+
+def _list_lines(path: Path) -> tuple[list[str], list[str]]:
+    """(comment lines, entry lines) of a TUM list file (``timestamp path`` per line)."""
+    lines = path.read_text().splitlines()
+    return [s for s in lines if s.startswith("#")], [s for s in lines if s.strip() and s[0] != "#"]
+
+
+def _median_interval_s(list_file: Path) -> float:
+    if not list_file.is_file():
+        return float("inf")
+    stamps = sorted(float(s.split()[0]) for s in _list_lines(list_file)[1])
+    gaps = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+    return gaps[len(gaps) // 2] if gaps else float("inf")
+
+
+def strided_copy(seq: Path, stride: int) -> Path:
+    """A copy of a TUM-layout sequence with every ``stride``-th entry of ``rgb.txt`` and
+    ``depth.txt`` (the first kept); every other file and folder is a symlink to the original.
+    Made once, in the cache folder."""
+    from slam.demo import cache_dir
+
+    out = cache_dir() / "matrix" / "real" / f"{seq.name}-x{stride}"
+    if (out / "depth.txt").is_file():
+        return out
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.mkdir(parents=True, exist_ok=True)
+    for item in seq.iterdir():
+        link = tmp / item.name
+        if item.name in ("rgb.txt", "depth.txt"):
+            comments, entries = _list_lines(item)
+            link.write_text("\n".join(comments + entries[::stride]) + "\n")
+        elif not link.exists():
+            link.symlink_to(item.resolve())
+    tmp.rename(out)
+    return out
 
 
 # runs in a fresh process, importing slam from the tree under test: numpy and slam only

@@ -45,3 +45,31 @@ def test_the_small_matrix_runs_and_the_wall_does_not_slide(tmp_path, monkeypatch
     # --compare reads two result files and counts the rows that got worse
     text, worse = matrix.compare(json.loads(out.read_text()), json.loads(out.read_text()))
     assert worse == 0 and "wall-x1-s0-half" in text
+
+
+def test_a_video_rate_real_sequence_runs_again_on_every_third_frame(tmp_path, monkeypatch):
+    monkeypatch.setenv("SLAM_CACHE_DIR", str(tmp_path / "cache"))
+    matrix = _load("matrix")
+    seq = tmp_path / "shared" / "seq"
+    (seq / "rgb").mkdir(parents=True)
+    for name in ("rgb", "depth"):
+        entries = [f"{i / 30:.6f} {name}/{i}.png" for i in range(10)]
+        (seq / f"{name}.txt").write_text("# a comment\n" + "\n".join(entries) + "\n")
+    (seq / "groundtruth.txt").write_text("0 0 0 0 0 0 0 1\n")
+    assert matrix._median_interval_s(seq / "depth.txt") == pytest.approx(1 / 30, abs=1e-5)
+    out = matrix.strided_copy(seq, 3)
+    assert out.parent == tmp_path / "cache" / "matrix" / "real" and out.name == "seq-x3"
+    depth = (out / "depth.txt").read_text().splitlines()
+    # the comments, then frames 0, 3, 6 and 9
+    assert depth == ["# a comment"] + [f"{i / 30:.6f} depth/{i}.png" for i in (0, 3, 6, 9)]
+    assert (out / "rgb").is_symlink() and (out / "rgb").resolve() == (seq / "rgb").resolve()
+    assert (out / "groundtruth.txt").read_text() == "0 0 0 0 0 0 0 1\n"
+    assert matrix.strided_copy(seq, 3) == out  # made once
+    # a sequence already far apart in time (the cabinet's keyframes) gets no faster copy
+    monkeypatch.setattr(matrix, "SHARED", tmp_path / "shared")
+    assert [r.name for r in matrix.real_rows()] == ["seq", "seq-x3"]
+    slow = tmp_path / "shared" / "slow"
+    slow.mkdir()
+    (slow / "depth.txt").write_text("\n".join(f"{i * 0.66:.2f} d/{i}.png" for i in range(5)))
+    (slow / "groundtruth.txt").write_text("0 0 0 0 0 0 0 1\n")
+    assert [r.name for r in matrix.real_rows()] == ["seq", "slow", "seq-x3"]
