@@ -252,17 +252,7 @@ def run(
     start = 0
     if resume:
         assert run_dir is not None
-        state, start = read_checkpoint(run_dir)
-        if checkpoint_every is None:
-            every = state.get("checkpoint_every", 0)
-            checkpoint_every = None if every is None or every < 0 else int(every)
-        try:
-            system.load_state_dict(state)
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise RunFolderError(
-                f"{run_dir}: the checkpoint does not hold a complete state of this version "
-                f"({type(exc).__name__}: {exc}); start the run again with --overwrite"
-            ) from exc
+        start, checkpoint_every = _resume(system, Path(run_dir), checkpoint_every)
         log.info("resuming %s at frame %d of %d", run_dir, start, len(indices))
     else:
         check_sequence(sequence, indices)
@@ -290,12 +280,44 @@ def run(
                 checkpoints.save(system, done, total)
         # a first signal from here on lets the run finish (its results are then complete)
         result = system.finish()
+    _complete_metrics(result, sequence, checkpoints, reads, start if resume else None)
+    log.info("%s: %s", sequence.name, summary_line(result.metrics))
+    return result
+
+
+def _resume(system: Slam, run_dir: Path, checkpoint_every: int | None) -> tuple[int, int | None]:
+    """Load the run folder's checkpoint into ``system``: the number of frames it had done, and
+    the checkpoint interval to go on with (the interrupted run's when none is given)."""
+    state, start = read_checkpoint(run_dir)
+    if checkpoint_every is None:
+        every = state.get("checkpoint_every", 0)
+        checkpoint_every = None if every is None or every < 0 else int(every)
+    try:
+        system.load_state_dict(state)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise RunFolderError(
+            f"{run_dir}: the checkpoint does not hold a complete state of this version "
+            f"({type(exc).__name__}: {exc}); start the run again with --overwrite"
+        ) from exc
+    return start, checkpoint_every
+
+
+def _complete_metrics(
+    result: RunResult,
+    sequence: Sequence,
+    checkpoints: Checkpoints,
+    reads: ReadTimes,
+    resumed_at: int | None,
+) -> None:
+    """What only the loop over the sequence knows, added to the run's metrics: the sequence,
+    checkpoints, where a resumed run started, peak memory, reading time, and the evaluation
+    against the sequence's ground truth (when it has one)."""
     m = result.metrics
     m.sequence = str(sequence.path)
     m.checkpoints = checkpoints.count
     m.checkpoint_ms = round(checkpoints.ms, 1)
-    if resume:
-        m.resumed_at_frame = start
+    if resumed_at is not None:
+        m.resumed_at_frame = resumed_at
     m.peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
     m.read_ms_per_frame = reads.ms_per_frame()
     m.update(
@@ -303,8 +325,6 @@ def run(
             sequence, result.trajectory, result.odometry, result.pose_graph
         )
     )
-    log.info("%s: %s", sequence.name, summary_line(m))
-    return result
 
 
 def _real_time(m: dict[str, Any]) -> str:

@@ -295,6 +295,71 @@ def _photometric_equations(
     return _normal_equations(_cross_jacobian(Qp, g), wp.astype(np.float32), rp)
 
 
+@dataclass
+class _Terms:
+    """One pyramid level's settings of the two terms of :func:`joint_align`."""
+
+    gate: np.float32  # geometric correspondences farther apart are rejected (m)
+    delta_g: float  # Huber delta of the geometric term (m)
+    min_geo_scale_m: float
+    photometric_weight: float  # 0: depth alone
+    min_pho_scale: float
+    degenerate_ratio: float  # > 0: depth is left out of the directions it is blind in
+
+
+def _joint_equations(
+    src: _SourceLevel, tgt: _TargetLevel, K: np.ndarray, T: np.ndarray, terms: _Terms
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """One Gauss-Newton iteration's normal equations ``(H, b)`` of :func:`joint_align` at pose
+    ``T`` (``T_target_source``) and the geometric residuals of its correspondences; None when
+    fewer than 6 source points correspond."""
+    fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    h, w = tgt.shape
+    gate = terms.gate
+    Q = src.points @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
+    z = Q[:, 2]
+    front = z > 1e-3
+    inv_z = np.float32(1.0) / np.where(front, z, np.float32(1.0))
+    uf = fx * Q[:, 0] * inv_z + cx
+    vf = fy * Q[:, 1] * inv_z + cy
+    ui = np.rint(uf).astype(np.int64)
+    vi = np.rint(vf).astype(np.int64)
+    idx = np.flatnonzero(front & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h))
+    pix = vi[idx] * w + ui[idx]
+    zt = tgt.depth[pix]
+    keep = zt > 0
+    idx, pix, zt = idx[keep], pix[keep], zt[keep]
+    Qi = Q[idx]
+    # geometric term: point-to-plane against the projectively associated target vertex
+    n = tgt.normal[pix]
+    r_g = np.einsum("ij,ij->i", Qi - tgt.vertex[pix], n)
+    geo = np.flatnonzero((np.abs(r_g) < gate) & tgt.has_normal[pix])
+    if len(geo) < 6:
+        return None
+    rg = r_g[geo]
+    s_g = _robust_scale(rg, terms.min_geo_scale_m)
+    wg = (_huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
+    H, b = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
+    if terms.photometric_weight > 0 and src.intensity is not None and tgt.photo is not None:
+        # photometric term, on source points the target surface does not hide
+        vis = np.flatnonzero(np.abs(zt - Qi[:, 2]) < gate)
+        if len(vis) >= 6:
+            pi = idx[vis]
+            Hp, bp = _photometric_equations(
+                src.intensity[pi], tgt.photo, Qi[vis], uf[pi], vf[pi], inv_z[pi], fx, fy,
+                terms.photometric_weight, terms.min_pho_scale,
+            )  # fmt: skip
+            if terms.degenerate_ratio > 0:  # where depth is blind, colour decides alone
+                median_z = float(np.median(Qi[geo, 2]))
+                H, b = without_blind_directions(H, b, median_z, terms.degenerate_ratio)
+            H = H + Hp
+            b = b + bp
+    # a whisper of damping: directions nothing constrains (sliding along a bare wall) stay put
+    # instead of making the system singular
+    H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
+    return H, b, rg
+
+
 def joint_align(
     source: RgbdImage,
     target: RgbdImage,
@@ -332,56 +397,22 @@ def joint_align(
         if n_iter <= 0:
             continue
         scale = coarse_factor**level
-        gate = np.float32(max_correspondence_m * scale)
-        delta_g = huber_delta_m * scale
+        terms = _Terms(
+            np.float32(max_correspondence_m * scale),
+            huber_delta_m * scale,
+            min_geo_scale_m,
+            photometric_weight if use_pho else 0.0,
+            min_pho_scale,
+            degenerate_ratio,
+        )
         src = source.source(level, finest_step if level == 0 else 1)
         tgt = target.target(level)
-        K = target.K[level]
-        fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
-        h, w = tgt.shape
         in_range = np.count_nonzero(src.points[:, 2] < fitness_depth_max_m) if level == 0 else 0
         for _ in range(n_iter):
-            Q = src.points @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
-            z = Q[:, 2]
-            front = z > 1e-3
-            inv_z = np.float32(1.0) / np.where(front, z, np.float32(1.0))
-            uf = fx * Q[:, 0] * inv_z + cx
-            vf = fy * Q[:, 1] * inv_z + cy
-            ui = np.rint(uf).astype(np.int64)
-            vi = np.rint(vf).astype(np.int64)
-            idx = np.flatnonzero(front & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h))
-            pix = vi[idx] * w + ui[idx]
-            zt = tgt.depth[pix]
-            keep = zt > 0
-            idx, pix, zt = idx[keep], pix[keep], zt[keep]
-            Qi = Q[idx]
-            # geometric term: point-to-plane against the projectively associated target vertex
-            n = tgt.normal[pix]
-            r_g = np.einsum("ij,ij->i", Qi - tgt.vertex[pix], n)
-            geo = np.flatnonzero((np.abs(r_g) < gate) & tgt.has_normal[pix])
-            if len(geo) < 6:
+            equations = _joint_equations(src, tgt, target.K[level], T, terms)
+            if equations is None:
                 return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)
-            rg = r_g[geo]
-            s_g = _robust_scale(rg, min_geo_scale_m)
-            wg = (_huber_weights(rg, delta_g) / s_g**2).astype(np.float32)
-            H, b = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
-            if use_pho and src.intensity is not None and tgt.photo is not None:
-                # photometric term, on source points the target surface does not hide
-                vis = np.flatnonzero(np.abs(zt - Qi[:, 2]) < gate)
-                if len(vis) >= 6:
-                    pi = idx[vis]
-                    Hp, bp = _photometric_equations(
-                        src.intensity[pi], tgt.photo, Qi[vis], uf[pi], vf[pi], inv_z[pi], fx, fy,
-                        photometric_weight, min_pho_scale,
-                    )  # fmt: skip
-                    if degenerate_ratio > 0:  # where depth is blind, colour decides alone
-                        median_z = float(np.median(Qi[geo, 2]))
-                        H, b = without_blind_directions(H, b, median_z, degenerate_ratio)
-                    H = H + Hp
-                    b = b + bp
-            # a whisper of damping: directions nothing constrains (sliding along a bare wall)
-            # stay put instead of making the system singular
-            H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
+            H, b, rg = equations
             T = exp_se3(-np.linalg.solve(H, b)) @ T
             if level == 0:
                 fitness = min(1.0, len(rg) / max(in_range, 1))
