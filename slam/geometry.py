@@ -57,8 +57,10 @@ def exp_se3(xi: np.ndarray) -> np.ndarray:
     theta = np.linalg.norm(w)
     R = Rotation.from_rotvec(w).as_matrix()
     W = skew(w)
-    if theta < 1e-4:  # series expansions avoid cancellation near zero
-        a, b = 0.5 - theta**2 / 24.0, 1.0 / 6.0 - theta**2 / 120.0
+    if theta < 1e-2:  # series expansions avoid cancellation near zero (terms to theta^4)
+        t2 = theta**2
+        a = 0.5 - t2 / 24.0 + t2**2 / 720.0
+        b = 1.0 / 6.0 - t2 / 120.0 + t2**2 / 5040.0
     else:
         a, b = (1 - np.cos(theta)) / theta**2, (theta - np.sin(theta)) / theta**3
     V = np.eye(3) + a * W + b * (W @ W)
@@ -70,8 +72,9 @@ def log_se3(T: np.ndarray) -> np.ndarray:
     w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
     theta = np.linalg.norm(w)
     W = skew(w)
-    if theta < 1e-4:
-        a = 1.0 / 12.0 + theta**2 / 720.0
+    if theta < 1e-2:  # the closed form cancels to ~1e-8 relative error at theta = 1e-4
+        t2 = theta**2
+        a = 1.0 / 12.0 + t2 / 720.0 + t2**2 / 30240.0
     else:
         a = (1 - theta / 2 * np.sin(theta) / (1 - np.cos(theta))) / theta**2
     V_inv = np.eye(3) - 0.5 * W + a * (W @ W)
