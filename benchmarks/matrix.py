@@ -12,7 +12,7 @@ source tree, e.g. a worktree of main, so old and new run the very same sequences
 records odometry and final ATE (RMSE, SE(3)-aligned), the per-frame step error of odometry
 (translation error of each frame-to-frame motion against ground truth: median and worst, and
 their ratio), lost frames, loops and fps. One row per kind is also rendered exact (no sensor
-noise: ``EXACT``), and each real sequence recorded at video rate runs again on every third
+noise: ``EXACT``) and with colour not synchronised with depth (``UNSYNCED``), and each real sequence recorded at video rate runs again on every third
 frame (``-x3``: real motion three times as fast). Synthetic sequences are generated once into the cache
 folder (``$SLAM_CACHE_DIR``/matrix). Writes ``benchmarks/results/matrix[-TAG].json`` and prints a
 Markdown table.
@@ -44,6 +44,12 @@ SEEDS = (0, 1)
 #: term's weighting (corridor-x2-s1 drifted 0.29 m on exact depth, session 16). One fast row
 #: per kind, seed 0, and that corridor: (kind, speed, seed).
 EXACT = tuple((kind, 2.0, 0) for kind in KINDS) + (("corridor", 2.0, 1),)
+#: Rows whose colour camera is not synchronised with depth: each colour image taken within
+#: UNSYNCED_MS of its depth image, as TUM fr1 / fr2's Kinect (up to 17 ms): on a fast camera
+#: colour and depth then see from poses millimetres and tenths of a degree apart. One fast row
+#: per kind, seed 0: (kind, speed, seed); row names end in ``-c<ms>``.
+UNSYNCED = tuple((kind, 2.0, 0) for kind in KINDS)
+UNSYNCED_MS = 15.0
 FRAMES = 240
 #: Real sequences recorded at video rate run a second time on every REAL_STRIDE-th frame.
 REAL_STRIDE = 3
@@ -59,23 +65,35 @@ class Row:
 
 
 def synthetic_rows(
-    frames: int, kinds, speeds, seeds, half: bool = False, exact=(), only: str = ""
+    frames: int,
+    kinds,
+    speeds,
+    seeds,
+    half: bool = False,
+    exact=(),
+    only: str = "",
+    unsynced=(),
 ) -> list[Row]:
-    """Every kind x speed x seed, then the ``exact`` (kind, speed, seed) rows without noise;
-    ``only``: comma-separated substrings of the row names to keep (the others are not
-    generated)."""
+    """Every kind x speed x seed, then the ``exact`` (kind, speed, seed) rows without noise and
+    the ``unsynced`` ones with colour taken up to ``UNSYNCED_MS`` off the depth; ``only``:
+    comma-separated substrings of the row names to keep (the others are not generated)."""
     from slam.demo import cache_dir
     from slam.synthetic import SynthConfig, generate_sequence, is_complete
 
-    combos = [(k, sp, se, True) for k in kinds for sp in speeds for se in seeds]
-    combos += [(k, sp, se, False) for k, sp, se in exact]
+    combos = [(k, sp, se, True, 0.0) for k in kinds for sp in speeds for se in seeds]
+    combos += [(k, sp, se, False, 0.0) for k, sp, se in exact]
+    combos += [(k, sp, se, True, UNSYNCED_MS) for k, sp, se in unsynced]
     rows = []
-    for kind, speed, seed, noise in combos:
-        name = f"{kind}-x{speed:g}-s{seed}" + ("-half" if half else "") + ("" if noise else "-exact")
+    for kind, speed, seed, noise, offset_ms in combos:
+        name = (
+            f"{kind}-x{speed:g}-s{seed}" + ("-half" if half else "") + ("" if noise else "-exact")
+        )
+        name += f"-c{offset_ms:g}" if offset_ms else ""
         if only and not any(s in name for s in only.split(",")):
             continue
         kw = dict(frames=frames, scene=kind, speed=speed, seed=seed, loop=kind == "room")
         kw["noise"] = noise
+        kw["color_offset_ms"] = offset_ms
         cfg = SynthConfig.half_resolution(**kw) if half else SynthConfig(**kw)
         path = cache_dir() / "matrix" / f"{name}-{frames}-v1"
         if not is_complete(path):
@@ -279,6 +297,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--speeds", default=",".join(map(str, SPEEDS)))
     ap.add_argument("--no-real", action="store_true", help="synthetic rows only")
     ap.add_argument("--no-exact", action="store_true", help="without the exact-depth rows")
+    ap.add_argument(
+        "--no-unsynced", action="store_true", help="without the unsynchronised-colour rows"
+    )
     ap.add_argument("--only", default="", help="comma-separated substrings: run matching rows")
     ap.add_argument("--small", action="store_true", help="CI version: 2 tiny synthetic rows")
     ap.add_argument("--out", type=Path, default=None, help="JSON path (default results/)")
@@ -299,6 +320,9 @@ def main(argv: list[str] | None = None) -> int:
             [int(s) for s in args.seeds.split(",")],
             exact=() if args.no_exact else [e for e in EXACT if e[0] in args.kinds.split(",")],
             only=args.only,
+            unsynced=()
+            if args.no_unsynced
+            else [e for e in UNSYNCED if e[0] in args.kinds.split(",")],
         )
         rows = ([] if args.no_real else real_rows()) + rows
     if args.only:

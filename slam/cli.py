@@ -268,13 +268,27 @@ def synth(
             "closure experiments.",
         ),
     ] = 0.0,
+    color_offset_ms: Annotated[
+        float,
+        typer.Option(
+            "--color-offset-ms",
+            help="Colour not synchronised with depth: each colour image taken up to this many "
+            "ms off its depth image (TUM fr1/fr2's Kinect: up to 17), as rgb.txt says.",
+        ),
+    ] = 0.0,
 ) -> None:
     """Render a synthetic RGB-D sequence with exact ground truth (TUM layout + calibration.yaml)."""
     from slam.synthetic import SynthConfig, generate_sequence
 
     setup_logging()
     cfg = SynthConfig(
-        frames=frames, loop=loop, seed=seed, alias=alias, noise=noise, drift_bias=drift_bias
+        frames=frames,
+        loop=loop,
+        seed=seed,
+        alias=alias,
+        noise=noise,
+        drift_bias=drift_bias,
+        color_offset_ms=color_offset_ms,
     )
     with progress_bar() as bar:
         task = bar.add_task("rendering", total=frames)

@@ -34,6 +34,23 @@ class FeatureSet:
     def __len__(self) -> int:
         return len(self.pixels)
 
+    def in_camera(self, T_other_this: np.ndarray, K: np.ndarray) -> FeatureSet:
+        """The same features as another camera with intrinsics ``K`` sees them, this one's pose
+        in its frame being ``T_other_this``: points moved into it, pixels shifted by the change
+        of their projections. ORB runs on the colour image: a colour image taken off the depth's
+        instant was seen from ``T_depth_colour``, and ``in_camera(T_depth_colour, K)`` gives its
+        features as the depth camera, whose pose tracking estimates, would have seen them."""
+        if len(self) == 0:
+            return self
+        R, t = T_other_this[:3, :3], T_other_this[:3, 3]
+        moved = self.points_cam @ R.T + t
+
+        def pixel(p: np.ndarray) -> np.ndarray:
+            return p[:, :2] / p[:, 2:3] * np.diag(K)[:2] + K[:2, 2]
+
+        shift = pixel(moved) - pixel(self.points_cam)
+        return FeatureSet(self.pixels + shift, self.descriptors, moved, self.octave)
+
     @staticmethod
     def empty() -> FeatureSet:
         return FeatureSet(

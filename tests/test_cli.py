@@ -73,6 +73,21 @@ def test_synth_writes_a_sequence(tmp_path):
     assert (seq / "calibration.yaml").is_file() and (seq / "groundtruth.txt").is_file()
 
 
+def test_synth_takes_colour_off_the_depths_instant(tmp_path):
+    seq = tmp_path / "seq"
+    res = runner.invoke(app, ["synth", str(seq), "--frames", "3", "--color-offset-ms", "10"])
+    assert res.exit_code == 0, res.output
+
+    def stamps(name):
+        lines = (seq / name).read_text().splitlines()
+        return np.array([float(ln.split()[0]) for ln in lines if not ln.startswith("#")])
+
+    offsets = stamps("rgb.txt") - stamps("depth.txt")
+    assert np.all(np.abs(offsets) <= 0.010 + 1e-6) and np.any(offsets != 0)
+    res = runner.invoke(app, ["synth", str(tmp_path / "x"), "--color-offset-ms", "30"])
+    assert res.exit_code != 0 and "color_offset_ms" in res.output
+
+
 def test_run_writes_the_run_folder(tmp_path):
     from slam.synthetic import SynthConfig, generate_sequence
 

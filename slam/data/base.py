@@ -90,8 +90,10 @@ class Frame:
     """One RGB-D frame.
 
     ``color`` is HxWx3 uint8 RGB (or ``None`` for depth-only sequences); ``depth_m`` is HxW float32
-    metres with 0 meaning no depth; ``K`` is the 3x3 intrinsic matrix of the depth image.
-    A malformed frame (``K`` not a pinhole matrix for the image, depth not 2-D, colour of
+    metres with 0 meaning no depth; ``K`` is the 3x3 intrinsic matrix of the depth image;
+    ``color_dt_s``: when the colour image was captured, in seconds after the depth image (the
+    frame's ``timestamp``); TUM RGB-D pairs images up to 20 ms apart, a moving camera took the
+    two from different poses. A malformed frame (``K`` not a pinhole matrix for the image, depth not 2-D, colour of
     another size, a non-finite timestamp) is a :class:`FrameError` or :class:`CalibrationError`
     when it is made; :func:`checked_frame` repeats the check where frames enter the system.
     """
@@ -101,6 +103,7 @@ class Frame:
     color: np.ndarray | None
     depth_m: np.ndarray
     K: np.ndarray
+    color_dt_s: float = 0.0
 
     def __post_init__(self) -> None:
         where = f"frame {self.index}"
@@ -127,6 +130,10 @@ class Frame:
         if not np.isfinite(stamp):
             raise FrameError(
                 f"{where}: timestamp must be a finite number of seconds, got {self.timestamp!r}"
+            )
+        if not np.isfinite(self.color_dt_s):
+            raise FrameError(
+                f"{where}: color_dt_s must be a finite number of seconds, got {self.color_dt_s!r}"
             )
         self.K = check_intrinsics(self.K, depth.shape[1], depth.shape[0], f"{where}: K")
 

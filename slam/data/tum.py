@@ -188,8 +188,9 @@ class TumSequence(Sequence):
     Frames are the one-to-one nearest-timestamp pairs of ``rgb.txt`` and ``depth.txt`` (within
     ``max_dt`` seconds); a frame's timestamp is its depth image's: the pose is estimated from the
     depth (ICP against the model), so that is the moment it belongs to (TUM fr1's colour and
-    depth are up to 14 ms apart; stamped at the colour's time the final ATE on ``tum-fr1-xyz``
-    reads ~10% worse). Without ``rgb.txt`` the sequence is depth-only. Calibration:
+    depth are up to 17 ms apart; stamped at the colour's time the final ATE on ``tum-fr1-xyz``
+    reads ~10% worse); the colour's offset is the frame's ``color_dt_s``. Without ``rgb.txt``
+    the sequence is depth-only. Calibration:
     ``calibration.yaml`` in the folder, else the TUM defaults when the folder name says
     freiburg1/2/3, else a :class:`CalibrationError`; ``calibration_overrides`` (from config/CLI)
     replace single fields.
@@ -216,6 +217,7 @@ class TumSequence(Sequence):
                     f"[{depth_stamps[0]:.3f}, {depth_stamps[-1]:.3f}]"
                 )
             self._stamps = np.array([depth_stamps[j] for _, j in pairs])
+            self._color_dt = np.array([rgb_stamps[i] - depth_stamps[j] for i, j in pairs])
             self._rgb: list[str] | None = [rgb_names[i] for i, _ in pairs]
             self._depth = [depth_names[j] for _, j in pairs]
             dropped = len(rgb_stamps) - len(pairs)
@@ -223,6 +225,7 @@ class TumSequence(Sequence):
                 log.info("%s: %d rgb images without a depth match were dropped", self.path, dropped)
         else:
             self._stamps = depth_stamps
+            self._color_dt = np.zeros(len(depth_stamps))
             self._rgb = None
             self._depth = depth_names
         self.calibration = apply_overrides(
@@ -317,7 +320,8 @@ class TumSequence(Sequence):
         if self._undistort is not None and depth.shape == self._undistort.map_x.shape:
             depth = self._undistort.depth(depth)
             color = None if color is None else self._undistort.color(color)
-        return Frame(index, float(self._stamps[index]), color, depth, self.calibration.K)
+        stamp, color_dt = float(self._stamps[index]), float(self._color_dt[index])
+        return Frame(index, stamp, color, depth, self.calibration.K, color_dt)
 
     @property
     def ground_truth(self) -> Trajectory | None:

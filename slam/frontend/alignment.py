@@ -114,7 +114,7 @@ class Attempt:
         return out
 
 
-def _joint_weight(cfg: TrackingConfig, att: Attempt) -> float | None:
+def joint_weight(cfg: TrackingConfig, att: Attempt) -> float | None:
     """The photometric weight of this attempt's alignments, None for depth alone (or when the
     frame has no registered colour)."""
     weight = att.photometric or cfg.photometric_weight
@@ -136,7 +136,7 @@ def align_to_model(
     RANSAC, not merely predicted) is distrusted: the guess is kept."""
     p = att.frame
     w, h = p.size
-    joint = _joint_weight(cfg, att)
+    joint = joint_weight(cfg, att)
     refs = att.references if joint is not None else []
     render = model.raycast(
         p.K_track, w, h, T_world_guess, False, joint is not None and not refs,
@@ -187,12 +187,13 @@ def align_from(
     if cfg.frame_to_frame and att.prev_depth is not None:
         joint = None
         if att.photometric > 0 or cfg.photometric_frame_to_frame:
-            joint = _joint_weight(cfg, att)
+            joint = joint_weight(cfg, att)
         prev = None  # the previous frame's grey pyramids, built only when colour joins depth
         if joint is not None and att.prev_frame is not None:
             prev = att.prev_frame.photometric_image(len(cfg.iterations))
         if joint is not None and prev is not None:
-            f2f = p.joint_to(prev, T_prev_cur, cfg, joint)
+            assert att.prev_frame is not None
+            f2f = p.joint_to(prev, T_prev_cur, cfg, joint, att.prev_frame.T_depth_colour)
         else:
             f2f = p.icp_to(att.prev_depth, T_prev_cur, cfg)
         att.status.f2f_fitness = round(float(f2f.fitness), 4)

@@ -37,6 +37,30 @@ class OrbExtractor:
         pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
         return FeatureSet(px[ok], desc[ok], pts, octave[ok])
 
+    def in_depth_camera(
+        self, feats: FeatureSet, depth_m: np.ndarray, K: np.ndarray, T_depth_colour: np.ndarray
+    ) -> FeatureSet:
+        """Features :meth:`extract` found on a colour image taken from ``T_depth_colour`` (in
+        the depth camera's frame: the two images taken at different instants by a moving
+        camera), as the depth camera saw them: each keypoint's point moved into the depth
+        camera (:meth:`FeatureSet.in_camera`), and lifted again by the depth where the depth
+        camera sees it (the depth at the colour pixel belongs to another ray: at a depth
+        edge, another surface). A keypoint whose depth pixel has no depth in range keeps the
+        moved point."""
+        moved = feats.in_camera(T_depth_colour, K)
+        if len(moved) == 0:
+            return moved
+        ui = np.round(moved.pixels[:, 0]).astype(int)  # (a frame's colour has its depth's size)
+        vi = np.round(moved.pixels[:, 1]).astype(int)
+        inside = (ui >= 0) & (ui < depth_m.shape[1]) & (vi >= 0) & (vi < depth_m.shape[0])
+        z = np.zeros(len(moved))
+        z[inside] = depth_m[vi[inside], ui[inside]]
+        ok = (z > self.depth_min_m) & (z < self.depth_max_m)
+        u, v, z = ui[ok].astype(float), vi[ok].astype(float), z[ok]
+        pts = moved.points_cam.copy()
+        pts[ok] = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], -1)
+        return FeatureSet(moved.pixels, moved.descriptors, pts, moved.octave)
+
 
 def match_descriptors(a: np.ndarray, b: np.ndarray, ratio: float = 0.8) -> np.ndarray:
     """Hamming matches ``a -> b`` passing Lowe's ratio test and mutual consistency.

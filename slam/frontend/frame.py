@@ -99,8 +99,12 @@ class PreparedFrame:
     prep_ms: float = 0.0
     colour_registered: bool = False  # the photometric term can be built (on demand)
     constraint_ratio: float = 0.0  # how blind its depth is in its weakest direction (>= 1)
+    # the colour camera's pose in the depth camera when colour was taken at another instant
+    # (Frame.color_dt_s) and the camera moved (set by tracking from the motion); None: the same
+    T_depth_colour: np.ndarray | None = None
     _features: FeatureSet | None = field(default=None, init=False, repr=False)
     _extracted: bool = field(default=False, init=False, repr=False)
+    _moved: tuple[np.ndarray, FeatureSet] | None = field(default=None, init=False, repr=False)
 
     @staticmethod
     def build(
@@ -166,14 +170,23 @@ class PreparedFrame:
     @property
     def features(self) -> FeatureSet | None:
         """ORB features lifted by the full-resolution depth (None without colour), extracted
-        on first access and kept."""
+        on first access and kept; with ``T_depth_colour`` (found on a colour image taken off
+        the depth's instant) as the depth camera, whose pose tracking estimates, saw them
+        (:meth:`OrbExtractor.in_depth_camera`)."""
         if not self._extracted:
             f = self.frame
             if self.has_color:
                 assert self.orb is not None and f.color is not None
                 self._features = self.orb.extract(f.color, f.depth_m, f.K)
             self._extracted = True
-        return self._features
+        T = self.T_depth_colour
+        if self._features is None or T is None:
+            return self._features
+        if self._moved is None or self._moved[0] is not T:
+            assert self.orb is not None
+            f = self.frame
+            self._moved = (T, self.orb.in_depth_camera(self._features, f.depth_m, f.K, T))
+        return self._moved[1]
 
     def set_features(self, features: FeatureSet | None) -> None:
         """Use features already extracted from this frame (instead of extracting them)."""
@@ -217,11 +230,13 @@ class PreparedFrame:
         T_init: np.ndarray,
         cfg: TrackingConfig,
         weight: float | None = None,
+        target_colour: np.ndarray | None = None,
     ) -> IcpResult:
         """Joint photometric + geometric alignment of this frame to ``target`` (needs
         ``rgbd``); ``weight``: of the photometric term (default ``cfg.photometric_weight``).
         Along directions depth constrains ``degenerate_ratio`` times worse than its best,
-        colour decides alone."""
+        colour decides alone. ``target_colour``: the target's ``T_depth_colour`` (None: its
+        colour was seen from its depth camera, as a model view's is)."""
         assert self.rgbd is not None
         return joint_align(
             self.rgbd,
@@ -234,4 +249,5 @@ class PreparedFrame:
             cfg.photometric_weight if weight is None else weight,
             fitness_depth_max_m=self.icp_depth_max_m,
             degenerate_ratio=cfg.degenerate_ratio,
+            colour_poses=(self.T_depth_colour, target_colour),
         )

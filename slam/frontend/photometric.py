@@ -35,7 +35,7 @@ from slam.camera import scale_intrinsics
 from slam.frontend.icp import IcpResult
 from slam.frontend.pointcloud import depth_pyramid, normal_map
 from slam.frontend.weighted_icp import vertex_map, without_blind_directions
-from slam.geometry import exp_se3, inv_T
+from slam.geometry import exp_se3, inv_T, log_se3
 
 _MAD = 1.4826
 
@@ -236,6 +236,16 @@ def mean_warped_intensity(
     return out.reshape(depth_m.shape)
 
 
+def colour_motion(velocity: np.ndarray, dt_s: float, color_dt_s: float) -> np.ndarray | None:
+    """``T_depth_colour``: where the colour camera was, in the depth camera's frame, when it
+    took its image ``color_dt_s`` seconds after the depth image, for a camera moving by
+    ``velocity`` (``T_prev_cur``) in ``dt_s`` seconds at a constant twist. None when the two
+    were taken at the same instant (or the motion is unknown: ``dt_s`` <= 0)."""
+    if color_dt_s == 0.0 or dt_s <= 0.0:
+        return None
+    return exp_se3((color_dt_s / dt_s) * log_se3(velocity))
+
+
 def _huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
     a = np.abs(r)
     return np.where(a <= delta, np.float32(1.0), np.float32(delta) / np.maximum(a, 1e-12))
@@ -307,21 +317,35 @@ class _Terms:
     degenerate_ratio: float  # > 0: depth is left out of the directions it is blind in
 
 
+def _project(
+    points: np.ndarray, T: np.ndarray, fx: np.float32, fy: np.float32, cx: float, cy: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``points`` moved by ``T`` and projected: the moved points, pixel coordinates (u, v) and
+    inverse depths (points behind the camera get 1)."""
+    Q = points @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
+    z = Q[:, 2]
+    inv_z = np.float32(1.0) / np.where(z > 1e-3, z, np.float32(1.0))
+    return Q, fx * Q[:, 0] * inv_z + cx, fy * Q[:, 1] * inv_z + cy, inv_z
+
+
 def _joint_equations(
-    src: _SourceLevel, tgt: _TargetLevel, K: np.ndarray, T: np.ndarray, terms: _Terms
+    src: _SourceLevel,
+    tgt: _TargetLevel,
+    K: np.ndarray,
+    T: np.ndarray,
+    terms: _Terms,
+    T_colour: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """One Gauss-Newton iteration's normal equations ``(H, b)`` of :func:`joint_align` at pose
     ``T`` (``T_target_source``) and the geometric residuals of its correspondences; None when
-    fewer than 6 source points correspond."""
+    fewer than 6 source points correspond. ``T_colour``: the pose of the source's colour camera
+    in the target's colour camera, when the colour images were not taken at their depth
+    images' instants (None: ``T``)."""
     fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
     h, w = tgt.shape
     gate = terms.gate
-    Q = src.points @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
-    z = Q[:, 2]
-    front = z > 1e-3
-    inv_z = np.float32(1.0) / np.where(front, z, np.float32(1.0))
-    uf = fx * Q[:, 0] * inv_z + cx
-    vf = fy * Q[:, 1] * inv_z + cy
+    Q, uf, vf, inv_z = _project(src.points, T, fx, fy, cx, cy)
+    front = Q[:, 2] > 1e-3
     ui = np.rint(uf).astype(np.int64)
     vi = np.rint(vf).astype(np.int64)
     idx = np.flatnonzero(front & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h))
@@ -345,8 +369,11 @@ def _joint_equations(
         vis = np.flatnonzero(np.abs(zt - Qi[:, 2]) < gate)
         if len(vis) >= 6:
             pi = idx[vis]
+            Qp, up, vp, inv_zp = Qi[vis], uf[pi], vf[pi], inv_z[pi]
+            if T_colour is not None:  # the colour images were taken from other poses
+                Qp, up, vp, inv_zp = _project(src.points[pi], T_colour, fx, fy, cx, cy)
             Hp, bp = _photometric_equations(
-                src.intensity[pi], tgt.photo, Qi[vis], uf[pi], vf[pi], inv_z[pi], fx, fy,
+                src.intensity[pi], tgt.photo, Qp, up, vp, inv_zp, fx, fy,
                 terms.photometric_weight, terms.min_pho_scale,
             )  # fmt: skip
             if terms.degenerate_ratio > 0:  # where depth is blind, colour decides alone
@@ -374,6 +401,7 @@ def joint_align(
     finest_step: int = 1,
     fitness_depth_max_m: float = float("inf"),
     degenerate_ratio: float = 0.0,
+    colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
 ) -> IcpResult:
     """Align ``source`` to ``target`` (see the module docstring); ``iterations`` per level,
     coarse to fine. Correspondence distance and Huber delta of the geometric term grow by
@@ -385,8 +413,15 @@ def joint_align(
     (the depth-only ICP's range, so both fitnesses mean the same). With both terms and
     ``degenerate_ratio`` > 0, the geometric term is left out of the directions it constrains
     more than that many times worse than its best
-    (:func:`~slam.frontend.weighted_icp.without_blind_directions`): there colour decides alone."""
+    (:func:`~slam.frontend.weighted_icp.without_blind_directions`): there colour decides alone.
+    ``colour_poses``: the source's and the target's ``T_depth_colour``, the pose of each colour
+    camera in its depth camera when the two images were not taken at the same instant (a moving
+    camera: :func:`colour_motion`; None: the same pose); the photometric term then moves the
+    source's points into the target's colour camera. (Its Jacobian is taken at those points,
+    not rotated back into the depth camera: a step of a few milliseconds' motion changes how
+    fast it converges, not where to.)"""
     T = np.asarray(init_T_target_source, float).copy()
+    C_src, C_tgt = colour_poses
     levels = len(iterations)
     use_pho = (
         photometric_weight > 0 and source.intensity is not None and target.intensity is not None
@@ -409,7 +444,11 @@ def joint_align(
         tgt = target.target(level)
         in_range = np.count_nonzero(src.points[:, 2] < fitness_depth_max_m) if level == 0 else 0
         for _ in range(n_iter):
-            equations = _joint_equations(src, tgt, target.K[level], T, terms)
+            T_colour = None
+            if use_pho and (C_src is not None or C_tgt is not None):
+                T_colour = T if C_src is None else T @ C_src
+                T_colour = T_colour if C_tgt is None else inv_T(C_tgt) @ T_colour
+            equations = _joint_equations(src, tgt, target.K[level], T, terms, T_colour)
             if equations is None:
                 return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)
             H, b, rg = equations

@@ -16,7 +16,9 @@ rescued by ORB + RANSAC against the last keyframes.
    constant velocity, the best RANSAC pose); the best overlap wins;
    :meth:`~Tracker.check_motion`: an estimate that departs from the prediction by more than a
    hand-held camera can accelerate is aligned again with colour joining depth (depth slides
-   along a wall filling the view; texture does not);
+   along a wall filling the view; texture does not); :meth:`~Tracker.colour_first_step`: the
+   first step, aligned with colour taken off the depth's instant, again once the step gives
+   where the colour cameras were;
 5. :meth:`~Tracker.verify`: the checks; after a gap, or with an overlap far below the recent
    frames', the pose must be supported by ORB matches;
 6. :meth:`~Tracker.commit`: the pose becomes the previous frame of the next one, and maybe a
@@ -37,11 +39,12 @@ import numpy as np
 from slam.config import TrackingConfig
 from slam.data.base import Frame
 from slam.errors import ConfigError, TrackingError
-from slam.frontend.alignment import Attempt, align_from, align_to_model
+from slam.frontend.alignment import Attempt, align_from, align_to_model, joint_weight
 from slam.frontend.features import OrbExtractor
 from slam.frontend.frame import PreparedFrame, icp_depth_range
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
+from slam.frontend.photometric import colour_motion
 from slam.frontend.tracker_state import TrackerState
 from slam.geometry import (
     exp_se3,
@@ -153,6 +156,7 @@ class Tracker:
             status.overlap = round(evidence.overlap, 4)
             status.icp_fitness = evidence.icp_fitness
             status.ransac_inliers = evidence.inliers
+        p.T_depth_colour = None  # the motion is unknown: the colour is taken as seen from T
         feats = p.features
         st.restart(p, T, feats)
         self._add_keyframe(p, T, feats, segment)
@@ -200,6 +204,7 @@ class Tracker:
         self.align(att, model, *self.seed(att))
         self.alternatives(att, model)
         self.check_motion(att, model)
+        self.colour_first_step(att, model)
         self.verify(att)
         T = self.commit(att)
         att.status.ms = (time.perf_counter() - t0) * 1e3 + p.prep_ms
@@ -247,6 +252,10 @@ class Tracker:
             status.photometric = att.photometric > 0
         if st.t_prev is not None and p.timestamp > st.t_prev:
             att.dt_s = p.timestamp - st.t_prev
+        # where the colour camera was when it took its image (Frame.color_dt_s), predicted
+        p.T_depth_colour = None
+        if not first_step:
+            p.T_depth_colour = colour_motion(velocity, att.dt_s, p.frame.color_dt_s)
         return att
 
     def seed(self, att: Attempt) -> tuple[np.ndarray, bool]:
@@ -336,6 +345,43 @@ class Tracker:
             _warn_unconfirmed(att, departure, bound, "aligning with colour failed the checks")
         att.ok = att.passes(cfg)
 
+    def colour_first_step(self, att: Attempt, model: TrackingModel) -> None:
+        """Stage 4c: the first step since tracking (re)started, with colour taken off the
+        depth's instant (``Frame.color_dt_s``). No motion was known, so the restart frame's
+        colour was taken as seen from its depth camera (and this frame's too). Now the step
+        is estimated, the restart frame's colour camera follows from it (constant velocity
+        over the step): its keyframe's features and colour reference move there. A step
+        aligned with colour is aligned again from the estimate, both colour cameras placed,
+        and kept when it passes the checks. (Colour 15 ms off the depth on a wall panned at
+        90 deg/s moved the first step 32 mm, 10 mm now; RANSAC against the restart keyframe's
+        raw features disagreed with depth, and a fast hall lost four frames: see
+        docs/benchmarks.md, session 20. A second and third pass move the step less each
+        time: the colour images of one step may be a few milliseconds apart.)"""
+        p, prev = att.frame, att.prev_frame
+        if not (att.first_step and att.ok and prev is not None):
+            return
+        if p.frame.color_dt_s == 0.0 and prev.frame.color_dt_s == 0.0:
+            return
+        assert att.T_world_cam is not None
+        step = inv_T(att.T_world_prev) @ att.T_world_cam
+        prev.T_depth_colour = colour_motion(step, att.dt_s, prev.frame.color_dt_s)
+        if prev.T_depth_colour is not None:
+            kf = self.last_keyframe  # the restart keyframe, as its depth camera saw it
+            if kf is not None and kf.index == prev.index and prev.features is not None:
+                kf.features = prev.features
+            image = prev.photometric_image(len(self.cfg.iterations))
+            T_colour = att.T_world_prev @ prev.T_depth_colour
+            att.references = [(im, T_colour if im is image else T) for im, T in att.references]
+            self.state.references = list(att.references)
+        if not joint_weight(self.cfg, att):
+            return
+        p.T_depth_colour = colour_motion(step, att.dt_s, p.frame.color_dt_s)
+        att.tried = []
+        estimate = align_from(self.cfg, att, model, step, True)
+        assert estimate is not None  # nothing was tried since the list was emptied
+        if estimate[2] >= self.cfg.min_overlap and estimate[1].fitness >= self.cfg.min_fitness:
+            att.keep(*estimate)
+
     def verify(self, att: Attempt) -> None:
         """Stage 5: record the estimate's checks in the status. A passing estimate after a gap,
         or with an overlap far below the recent frames' (a jump the prediction did not see,
@@ -383,7 +429,13 @@ class Tracker:
         assert att.T_world_cam is not None
         T = orthonormalize(att.T_world_cam)
         dt = float(np.clip(att.dt_ratio, 0.2, 5.0))
-        velocity = scale_motion(inv_T(att.T_world_prev) @ T, 1.0 / dt)
+        step = inv_T(att.T_world_prev) @ T
+        velocity = scale_motion(step, 1.0 / dt)
+        # the colour camera's pose, from the motion measured (the next frame and the keyframe
+        # references see this frame's colour, the keyframes its features, from there)
+        p.T_depth_colour = colour_motion(step, att.dt_s, p.frame.color_dt_s)
+        if att.feats is not None:
+            att.feats = p.features
         st.advance(p, T, velocity, att.overlap, att.feats)
         kf = self.last_keyframe
         if kf is not None:
@@ -412,8 +464,9 @@ class Tracker:
             image = p.photometric_image(len(self.cfg.iterations))
         if image is None:
             st.references = []
-        else:
-            st.references = (st.references + [(image, T.copy())])[-self.cfg.photometric_keyframes :]
+        else:  # the pose its colour was seen from
+            T_colour = T.copy() if p.T_depth_colour is None else T @ p.T_depth_colour
+            st.references = (st.references + [(image, T_colour)])[-self.cfg.photometric_keyframes :]
 
     def _candidates(self) -> list[Keyframe]:
         return self.state.ransac_candidates(self.cfg.relocalisation_keyframes)

@@ -75,7 +75,10 @@ class SynthConfig:
     tracking (:mod:`slam.synthetic.kinds`: a bare textured wall, a corridor, a far hall, a desk)
     and ignore ``loop`` and ``alias``; their paths are defined by rates (seconds, not frames).
     ``speed``: multiplies the camera's motion (the room: turns over the sequence; the other
-    kinds: every rate).
+    kinds: every rate). ``color_offset_ms``: the colour camera is not synchronised with the
+    depth camera: each colour image is taken at a time drawn uniformly within this many
+    milliseconds of its depth image (TUM fr1 / fr2's Kinect: up to 17 ms apart), from the
+    camera's pose at that time, and ``rgb.txt`` says when; 0: the two at the same instant.
     """
 
     frames: int = 300
@@ -94,6 +97,7 @@ class SynthConfig:
     render_frames: int | None = None  # render only the first N frames of the trajectory
     scene: str = "room"
     speed: float = 1.0
+    color_offset_ms: float = 0.0
 
     @classmethod
     def half_resolution(cls, **overrides) -> SynthConfig:
@@ -124,4 +128,10 @@ class SynthConfig:
             raise ConfigError(f"SynthConfig.scene must be one of {SCENES}, got {self.scene!r}")
         if not (np.isfinite(self.speed) and self.speed > 0):
             raise ConfigError(f"SynthConfig.speed must be a positive number, got {self.speed}")
+        if not (np.isfinite(self.color_offset_ms) and 0 <= self.color_offset_ms < 500 / FPS):
+            raise ConfigError(
+                "SynthConfig.color_offset_ms must be >= 0 and under half a frame interval "
+                f"({500 / FPS:.1f} ms: each colour image pairs with its own depth image), got "
+                f"{self.color_offset_ms}"
+            )
         self.calibration()

@@ -18,6 +18,7 @@ import numpy as np
 import open3d as o3d
 
 from slam.errors import DatasetError
+from slam.geometry import exp_se3, inv_T, log_se3
 from slam.synthetic.config import SynthConfig
 from slam.synthetic.render import build_scene, render_frame
 from slam.synthetic.trajectory import make_trajectory
@@ -49,6 +50,28 @@ def _calibration_yaml(cfg: SynthConfig) -> str:
 def _imwrite(path: Path, image: np.ndarray) -> None:
     if not cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
         raise DatasetError(f"{path}: cv2.imwrite failed")
+
+
+def _color_offsets(cfg: SynthConfig, n: int) -> np.ndarray:
+    """Seconds each colour image is taken after its depth image (``cfg.color_offset_ms``),
+    drawn from their own generator: the depth images do not change with the offset."""
+    if cfg.color_offset_ms <= 0:
+        return np.zeros(n)
+    rng = np.random.default_rng([int(cfg.seed), 1])
+    return rng.uniform(-1.0, 1.0, n) * cfg.color_offset_ms * 1e-3
+
+
+def _pose_at(traj: Trajectory, i: int, dt_s: float) -> np.ndarray:
+    """The camera's pose ``dt_s`` seconds after frame ``i`` (within a frame interval): along
+    the constant twist to the next frame (from the previous one before it; the first and the
+    last frame continue the twist of their one neighbour)."""
+    n = len(traj)
+    if n == 1 or dt_s == 0:
+        return traj.poses[i]
+    j = i + 1 if (dt_s > 0 and i + 1 < n) or i == 0 else i - 1
+    step = inv_T(traj.poses[i]) @ traj.poses[j]
+    fraction = dt_s / (traj.timestamps[j] - traj.timestamps[i])
+    return traj.poses[i] @ exp_se3(fraction * log_se3(step))
 
 
 def generate_sequence(
@@ -91,6 +114,8 @@ def generate_sequence(
         cfg.noise,
         cfg.alias,
     )
+    color_dt_s = _color_offsets(cfg, len(traj))
+    color_rng = np.random.default_rng([int(cfg.seed), 2])  # the depth's noise stays the same
     names = [f"{i:06d}.png" for i in range(len(traj))]
     t_render = 0.0
     pending: list[Future] = []
@@ -98,6 +123,8 @@ def generate_sequence(
         for i, T in enumerate(traj.poses):
             t1 = time.perf_counter()
             color, depth = render_frame(scene, T, cfg, rng)
+            if color_dt_s[i] != 0.0:  # the colour camera's own instant
+                color, _ = render_frame(scene, _pose_at(traj, i, color_dt_s[i]), cfg, color_rng)
             t_render += time.perf_counter() - t1
             d16 = np.clip(np.round(depth * cfg.depth_scale), 0, 65535).astype(np.uint16)
             pending.append(pool.submit(_imwrite, out / "rgb" / names[i], color[..., ::-1].copy()))
@@ -112,10 +139,11 @@ def generate_sequence(
             fut.result()
 
     stamps = [f"{t:.6f}" for t in traj.timestamps]
+    rgb_stamps = [f"{t:.6f}" for t in traj.timestamps + color_dt_s]
     atomic_write_text(
         out / "rgb.txt",
         "# color images (synthetic, slam.synthetic)\n# timestamp filename\n"
-        + "".join(f"{s} rgb/{nm}\n" for s, nm in zip(stamps, names)),
+        + "".join(f"{s} rgb/{nm}\n" for s, nm in zip(rgb_stamps, names)),
     )
     atomic_write_text(
         out / "depth.txt",

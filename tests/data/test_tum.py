@@ -39,6 +39,8 @@ def test_association_with_offset_timestamps(tmp_path):
     f = seq[3]
     assert f.depth_m[0, 0] == pytest.approx((5000 + 4) / 5000.0)  # depth file 4 (0.145)
     assert f.color[0, 0, 0] == 4
+    # ... and says when its colour was taken (tracking moves the colour camera by it)
+    assert [seq[i].color_dt_s for i in range(4)] == pytest.approx([-0.012] * 3 + [-0.012])
 
 
 def test_associate_is_one_to_one():

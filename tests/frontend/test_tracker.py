@@ -3,6 +3,7 @@ depth (pose errors against ground truth), the prepared frame, and checkpoints.""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -468,6 +469,81 @@ def test_the_colour_references_are_the_last_keyframes_of_the_segment(world, mode
     assert poses(loaded.references) == [9]
     tracker.reset(world.frame(150), world.poses[150], "reloc")
     assert poses(tracker.state.references) == [150]
+
+
+def test_colour_taken_off_the_depths_instant_is_seen_from_where_the_camera_was(world, model):
+    """A frame whose colour was taken ``color_dt_s`` after its depth: predict places its
+    colour camera along the predicted motion, commit along the motion measured; a keyframe's
+    colour reference is posed there, and its features are moved into the depth camera; a
+    restart knows no motion (the colour at the pose)."""
+    tracker = _tracker_at(world, 9, photometric_reference="keyframe")
+    tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10]
+    p = tracker.prepare(dataclasses.replace(world.frame(10), color_dt_s=0.01))
+    att = tracker.predict(p)
+    assert p.T_depth_colour is not None
+    np.testing.assert_allclose(p.T_depth_colour, scale_motion(att.velocity, 0.3), atol=1e-12)
+    tracker.align(att, model, *tracker.seed(att))
+    tracker.verify(att)
+    att.T_world_cam = world.poses[9] @ _motion(0.16, 0.0)  # far enough for a keyframe
+    T = tracker.commit(att)
+    assert T is not None and att.status.keyframe
+    step = inv_T(world.poses[9]) @ T
+    np.testing.assert_allclose(p.T_depth_colour, scale_motion(step, 0.3), atol=1e-9)
+    np.testing.assert_allclose(tracker.state.references[-1][1], T @ p.T_depth_colour, atol=1e-12)
+    # its ORB features (found on the colour image) as the depth camera saw them
+    kf = tracker.state.keyframes[-1]
+    seen = p._features.in_camera(p.T_depth_colour, p.frame.K)
+    assert p.features is kf.features
+    # lifted again by the depth where the depth camera sees them
+    np.testing.assert_allclose(kf.features.pixels, seen.pixels, atol=1e-9)
+    u, v = np.round(seen.pixels).astype(int).T
+    h, w = p.frame.depth_m.shape
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    z = np.zeros(len(u))
+    z[inside] = p.frame.depth_m[v[inside], u[inside]]
+    has = z > 0.2
+    assert has.mean() > 0.8
+    np.testing.assert_allclose(kf.features.points_cam[has, 2], z[has], atol=1e-6)
+    np.testing.assert_allclose(kf.features.points_cam[~has], seen.points_cam[~has], atol=1e-12)
+    # synchronised colour: no colour pose; a reset: the motion is unknown
+    q = tracker.prepare(world.frame(11))
+    tracker.predict(q)
+    assert q.T_depth_colour is None
+    tracker.reset(p, world.poses[10])
+    assert p.T_depth_colour is None
+    np.testing.assert_allclose(tracker.state.references[-1][1], world.poses[10], atol=1e-12)
+
+
+def test_the_first_step_with_colour_off_the_depths_instant_is_aligned_again(world, model):
+    """The first step after a restart knows no motion, so neither its colour camera's pose nor
+    the restart frame's; once the step is estimated both follow from it, the references see
+    the restart frame's colour from there, and the frame is aligned again (in the same place
+    here: the frames' colour was in fact taken with their depth)."""
+    tracker = Tracker(TrackingConfig(photometric_weight=1.0))
+    tracker.reset(dataclasses.replace(world.frame(9), color_dt_s=-0.01), world.poses[9])
+    p = tracker.prepare(dataclasses.replace(world.frame(10), color_dt_s=0.012))
+    att = tracker.predict(p)
+    assert att.first_step and p.T_depth_colour is None
+    tracker.align(att, model, *tracker.seed(att))
+    tracker.check_motion(att, model)
+    before = att.T_world_cam
+    tracker.colour_first_step(att, model)
+    step = inv_T(world.poses[9]) @ before
+    np.testing.assert_allclose(p.T_depth_colour, scale_motion(step, 0.36), atol=1e-9)
+    prev = att.prev_frame
+    np.testing.assert_allclose(prev.T_depth_colour, scale_motion(step, -0.3), atol=1e-9)
+    ((_, T_ref),) = tracker.state.references
+    np.testing.assert_allclose(T_ref, world.poses[9] @ prev.T_depth_colour, atol=1e-9)
+    assert tracker.state.keyframes[-1].features is prev.features  # moved and lifted again
+    assert att.ok and att.T_world_cam is not before
+    assert _errors(att.T_world_cam, world.poses[10])[0] < 0.002
+    # synchronised colour: nothing to do
+    tracker.reset(world.frame(9), world.poses[9])
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    tracker.align(att, model, *tracker.seed(att))
+    before = att.T_world_cam
+    tracker.colour_first_step(att, model)
+    assert att.T_world_cam is before
 
 
 def test_lost_status_and_colourless_frames(world):
