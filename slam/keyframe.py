@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from slam.camera import project
+
 #: ORB's image pyramid: each level is this much smaller than the one below (OpenCV's default)
 SCALE_FACTOR = 1.2
 
@@ -44,11 +46,7 @@ class FeatureSet:
             return self
         R, t = T_other_this[:3, :3], T_other_this[:3, 3]
         moved = self.points_cam @ R.T + t
-
-        def pixel(p: np.ndarray) -> np.ndarray:
-            return p[:, :2] / p[:, 2:3] * np.diag(K)[:2] + K[:2, 2]
-
-        shift = pixel(moved) - pixel(self.points_cam)
+        shift = project(moved, K) - project(self.points_cam, K)
         return FeatureSet(self.pixels + shift, self.descriptors, moved, self.octave)
 
     @staticmethod

@@ -33,8 +33,7 @@ class OrbExtractor:
         vi = np.clip(np.round(px[:, 1] * sy).astype(int), 0, depth_m.shape[0] - 1)
         z = depth_m[vi, ui].astype(np.float64)
         ok = (z > self.depth_min_m) & (z < self.depth_max_m)
-        u, v, z = ui[ok].astype(float), vi[ok].astype(float), z[ok]
-        pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
+        pts = _lift(ui[ok], vi[ok], z[ok], K)
         return FeatureSet(px[ok], desc[ok], pts, octave[ok])
 
     def in_depth_camera(
@@ -56,10 +55,15 @@ class OrbExtractor:
         z = np.zeros(len(moved))
         z[inside] = depth_m[vi[inside], ui[inside]]
         ok = (z > self.depth_min_m) & (z < self.depth_max_m)
-        u, v, z = ui[ok].astype(float), vi[ok].astype(float), z[ok]
         pts = moved.points_cam.copy()
-        pts[ok] = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], -1)
+        pts[ok] = _lift(ui[ok], vi[ok], z[ok], K)
         return FeatureSet(moved.pixels, moved.descriptors, pts, moved.octave)
+
+
+def _lift(ui: np.ndarray, vi: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Camera-frame points (N, 3) of depth pixels (integer ``ui``, ``vi``) at depths ``z``."""
+    u, v = ui.astype(float), vi.astype(float)
+    return np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
 
 
 def match_descriptors(a: np.ndarray, b: np.ndarray, ratio: float = 0.8) -> np.ndarray:
