@@ -52,6 +52,13 @@ def icp_depth_range(
     return near_max_m if valid and near >= near_fraction * valid else depth_max_m
 
 
+def usable_depth_fraction(depth_m: np.ndarray, depth_min_m: float, depth_max_m: float) -> float:
+    """Fraction of pixels with a depth inside the tracking range."""
+    return float(np.count_nonzero((depth_m > depth_min_m) & (depth_m < depth_max_m))) / max(
+        depth_m.size, 1
+    )
+
+
 def _blind_check(
     pyramid: list[np.ndarray], K_track: np.ndarray, icp_max: float, cfg: TrackingConfig
 ) -> tuple[float, float]:

@@ -35,7 +35,7 @@ from slam.camera import scale_intrinsics
 from slam.frontend.icp import IcpResult
 from slam.frontend.pointcloud import depth_pyramid, normal_map
 from slam.frontend.weighted_icp import vertex_map, without_blind_directions
-from slam.geometry import exp_se3, inv_T, log_se3
+from slam.geometry import exp_se3, inv_T
 
 _MAD = 1.4826
 
@@ -236,16 +236,6 @@ def mean_warped_intensity(
     return out.reshape(depth_m.shape)
 
 
-def colour_motion(velocity: np.ndarray, dt_s: float, color_dt_s: float) -> np.ndarray | None:
-    """``T_depth_colour``: where the colour camera was, in the depth camera's frame, when it
-    took its image ``color_dt_s`` seconds after the depth image, for a camera moving by
-    ``velocity`` (``T_prev_cur``) in ``dt_s`` seconds at a constant twist. None when the two
-    were taken at the same instant (or the motion is unknown: ``dt_s`` <= 0)."""
-    if color_dt_s == 0.0 or dt_s <= 0.0:
-        return None
-    return exp_se3((color_dt_s / dt_s) * log_se3(velocity))
-
-
 def _huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
     a = np.abs(r)
     return np.where(a <= delta, np.float32(1.0), np.float32(delta) / np.maximum(a, 1e-12))
@@ -416,10 +406,10 @@ def joint_align(
     (:func:`~slam.frontend.weighted_icp.without_blind_directions`): there colour decides alone.
     ``colour_poses``: the source's and the target's ``T_depth_colour``, the pose of each colour
     camera in its depth camera when the two images were not taken at the same instant (a moving
-    camera: :func:`colour_motion`; None: the same pose); the photometric term then moves the
-    source's points into the target's colour camera. (Its Jacobian is taken at those points,
-    not rotated back into the depth camera: a step of a few milliseconds' motion changes how
-    fast it converges, not where to.)"""
+    camera: :func:`slam.frontend.motion.colour_motion`; None: the same pose); the photometric
+    term then moves the source's points into the target's colour camera. (Its Jacobian is taken
+    at those points, not rotated back into the depth camera: a step of a few milliseconds'
+    motion changes how fast it converges, not where to.)"""
     T = np.asarray(init_T_target_source, float).copy()
     C_src, C_tgt = colour_poses
     levels = len(iterations)

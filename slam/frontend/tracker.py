@@ -44,12 +44,10 @@ from slam.frontend.features import OrbExtractor
 from slam.frontend.frame import PreparedFrame, icp_depth_range
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
-from slam.frontend.photometric import colour_motion
+from slam.frontend.motion import MAX_EXTRAPOLATION, colour_motion, scale_motion
 from slam.frontend.tracker_state import TrackerState
 from slam.geometry import (
-    exp_se3,
     inv_T,
-    log_se3,
     orthonormalize,
     rotation_angle_deg,
     translation_norm,
@@ -57,37 +55,9 @@ from slam.geometry import (
 from slam.keyframe import FeatureSet, Keyframe
 from slam.records import TrackingStatus
 
-__all__ = [
-    "MAX_EXTRAPOLATION",
-    "Attempt",
-    "PreparedFrame",
-    "Tracker",
-    "TrackerState",
-    "icp_depth_range",
-    "scale_motion",
-    "usable_depth_fraction",
-]
+__all__ = ["Attempt", "PreparedFrame", "Tracker", "TrackerState", "icp_depth_range"]
 
 log = logging.getLogger(__name__)
-
-
-#: The constant-velocity prediction extrapolates over at most this many usual frame intervals.
-MAX_EXTRAPOLATION = 30.0
-
-
-def scale_motion(T: np.ndarray, factor: float) -> np.ndarray:
-    """The motion ``T`` continued for ``factor`` times as long (constant twist):
-    ``exp(factor * log(T))``. Used to predict across a longer (or shorter) frame interval."""
-    if abs(factor - 1.0) < 1e-6:
-        return T
-    return exp_se3(factor * log_se3(T))
-
-
-def usable_depth_fraction(depth_m: np.ndarray, depth_min_m: float, depth_max_m: float) -> float:
-    """Fraction of pixels with a depth inside the tracking range."""
-    return float(np.count_nonzero((depth_m > depth_min_m) & (depth_m < depth_max_m))) / max(
-        depth_m.size, 1
-    )
 
 
 class Evidence(Protocol):

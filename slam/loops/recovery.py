@@ -22,8 +22,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from slam.config import TrackingConfig
-from slam.frontend.frame import PreparedFrame
-from slam.frontend.tracker import Tracker, usable_depth_fraction
+from slam.frontend.frame import PreparedFrame, usable_depth_fraction
+from slam.frontend.tracker import Tracker
 from slam.loops.closer import KeyframeLink
 from slam.loops.relocalisation import Relocaliser
 from slam.records import TrackingStatus

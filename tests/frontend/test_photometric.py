@@ -2,7 +2,6 @@ import numpy as np
 
 from slam.frontend.photometric import (
     RgbdImage,
-    colour_motion,
     grey,
     joint_align,
     mean_warped_intensity,
@@ -101,7 +100,10 @@ def test_warped_views_average_where_they_see_the_surface():
     for T, offset in ((T_left, 0.0), (T_right, -0.1), (T_away, 0.0)):
         d, c = _textured_wall(K, 320, 240, T_left if T is T_away else T)
         views.append((RgbdImage(d, grey(c) + np.float32(offset), K, 1), T))
-    one = [warp_intensity(d_dst, K, inv_T(T) @ T_dst, im.intensity[0], im.depth[0], 0.05) for im, T in views[:2]]
+    one = [
+        warp_intensity(d_dst, K, inv_T(T) @ T_dst, im.intensity[0], im.depth[0], 0.05)
+        for im, T in views[:2]
+    ]
     mean = mean_warped_intensity(d_dst, K, T_dst, views, 0.05)
     both = np.isfinite(one[0]) & np.isfinite(one[1])
     only_right = ~np.isfinite(one[0]) & np.isfinite(one[1])
@@ -158,15 +160,3 @@ def test_colour_taken_from_another_pose_is_aligned_from_there():
         errors[told] = translation_norm(inv_T(motion) @ res.T_target_source)
     assert errors[False] > 0.003, errors
     assert errors[True] < 3e-4, errors
-
-
-def test_the_colour_cameras_pose_follows_the_motion():
-    """``colour_motion``: half an interval after the depth, half the interval's motion; before
-    it, the motion reversed; at the same instant, or with the interval unknown, none."""
-    step = exp_se3(np.array([0.01, -0.02, 0.03, 0.02, 0.01, -0.005]))
-    half = colour_motion(step, 1 / 30, 1 / 60)
-    assert np.allclose(half @ half, step, atol=1e-12)
-    before = colour_motion(step, 1 / 30, -1 / 30)
-    assert np.allclose(before, inv_T(step), atol=1e-12)
-    assert colour_motion(step, 1 / 30, 0.0) is None
-    assert colour_motion(step, 0.0, 0.01) is None

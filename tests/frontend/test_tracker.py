@@ -16,7 +16,8 @@ from slam.frontend import frame as frame_module
 from slam.frontend.alignment import align_from, align_to_model
 from slam.frontend.features import OrbExtractor
 from slam.frontend.icp import IcpResult
-from slam.frontend.tracker import Tracker, icp_depth_range, scale_motion
+from slam.frontend.motion import scale_motion
+from slam.frontend.tracker import Tracker, icp_depth_range
 from slam.frontend.tracker_state import TrackerState
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import Keyframe
