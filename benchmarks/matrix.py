@@ -95,7 +95,9 @@ def synthetic_rows(
         kw["noise"] = noise
         kw["color_offset_ms"] = offset_ms
         cfg = SynthConfig.half_resolution(**kw) if half else SynthConfig(**kw)
-        path = cache_dir() / "matrix" / f"{name}-{frames}-v1"
+        # v2 of the unsynchronised rows: the colour camera at its own steady rate (v1 drew
+        # each frame's offset independently)
+        path = cache_dir() / "matrix" / f"{name}-{frames}-v{2 if offset_ms else 1}"
         if not is_complete(path):
             print(f"generating {name} ({frames} frames) into {path}", file=sys.stderr)
             generate_sequence(path, cfg)

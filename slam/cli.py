@@ -272,8 +272,9 @@ def synth(
         float,
         typer.Option(
             "--color-offset-ms",
-            help="Colour not synchronised with depth: each colour image taken up to this many "
-            "ms off its depth image (TUM fr1/fr2's Kinect: up to 17), as rgb.txt says.",
+            help="Colour not synchronised with depth: a colour camera at its own rate, its images "
+            "drifting from this many ms after their depth images to as many before (TUM "
+            "fr1/fr2's Kinect: up to 17), as rgb.txt says.",
         ),
     ] = 0.0,
 ) -> None:

@@ -76,9 +76,11 @@ class SynthConfig:
     and ignore ``loop`` and ``alias``; their paths are defined by rates (seconds, not frames).
     ``speed``: multiplies the camera's motion (the room: turns over the sequence; the other
     kinds: every rate). ``color_offset_ms``: the colour camera is not synchronised with the
-    depth camera: each colour image is taken at a time drawn uniformly within this many
-    milliseconds of its depth image (TUM fr1 / fr2's Kinect: up to 17 ms apart), from the
-    camera's pose at that time, and ``rgb.txt`` says when; 0: the two at the same instant.
+    depth camera: each colour image is taken off its depth image's instant by an offset that
+    drifts from this many milliseconds after it to as many before over the sequence (a colour
+    camera at its own steady rate, with 2 ms of jitter: TUM fr1 / fr2's Kinect, up to 17 ms
+    apart), from the camera's pose at that time, and ``rgb.txt`` says when; 0: the two at the
+    same instant.
     """
 
     frames: int = 300

@@ -52,13 +52,25 @@ def _imwrite(path: Path, image: np.ndarray) -> None:
         raise DatasetError(f"{path}: cv2.imwrite failed")
 
 
+#: The jitter of a camera's timestamps (seconds, uniform +-): TUM fr1's colour images are 28-36
+#: ms apart at 30 Hz.
+COLOR_JITTER_S = 0.002
+
+
 def _color_offsets(cfg: SynthConfig, n: int) -> np.ndarray:
-    """Seconds each colour image is taken after its depth image (``cfg.color_offset_ms``),
-    drawn from their own generator: the depth images do not change with the offset."""
+    """Seconds each colour image is taken after its depth image: a colour camera running at its
+    own steady rate, so the offset drifts from ``+cfg.color_offset_ms`` to ``-color_offset_ms``
+    over the sequence (TUM fr1_xyz's goes 15 -> -12 ms), with :data:`COLOR_JITTER_S` of
+    timestamp jitter, within +-``color_offset_ms``. Consecutive colour images are then about a
+    frame interval apart, as a 30 Hz camera's are (offsets drawn independently per frame would
+    put two colour images a few milliseconds apart). Drawn from their own generator: the depth
+    images do not change with the offset."""
     if cfg.color_offset_ms <= 0:
         return np.zeros(n)
     rng = np.random.default_rng([int(cfg.seed), 1])
-    return rng.uniform(-1.0, 1.0, n) * cfg.color_offset_ms * 1e-3
+    limit = cfg.color_offset_ms * 1e-3
+    drift = np.linspace(limit, -limit, n)
+    return np.clip(drift + rng.uniform(-COLOR_JITTER_S, COLOR_JITTER_S, n), -limit, limit)
 
 
 def _pose_at(traj: Trajectory, i: int, dt_s: float) -> np.ndarray:
