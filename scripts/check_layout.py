@@ -30,6 +30,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "slam.geometry",
             "slam.camera",
             "slam.config",
+            "slam.config_ranges",
             "slam.records",
             "slam.keyframe",
             "slam.trajectory",

@@ -8,7 +8,8 @@ import typing
 
 import pytest
 
-from slam.config import MAX_BLOCK_SIZE_M, SlamConfig, config_from_dict, load_config
+from slam.config import SlamConfig, config_from_dict, load_config
+from slam.config_ranges import MAX_BLOCK_SIZE_M
 from slam.errors import ConfigError
 
 
