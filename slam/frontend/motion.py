@@ -27,4 +27,4 @@ def colour_motion(velocity: np.ndarray, dt_s: float, color_dt_s: float) -> np.nd
     were taken at the same instant (or the motion is unknown: ``dt_s`` <= 0)."""
     if color_dt_s == 0.0 or dt_s <= 0.0:
         return None
-    return exp_se3((color_dt_s / dt_s) * log_se3(velocity))
+    return scale_motion(velocity, color_dt_s / dt_s)
