@@ -57,6 +57,12 @@ class TrackingConfig:
     bilateral_sigma_m: float = 0.03
     bilateral_sigma_px: float = 4.5
     iterations: list[int] = field(default_factory=lambda: [6, 4, 2])  # coarse ... fine
+    # ... for a frame whose motion is large or unknown (fast, after a gap, the first step: a
+    # RANSAC seed or a far guess), which starts centimetres from the optimum and needs more
+    # Gauss-Newton steps to converge: on the cabinet's 0.66 s steps [6, 4, 2] stopped short
+    # (0.020-0.042 m between runs of one tree); twice, three and four times the steps give
+    # the same 0.017 m (docs/benchmarks.md, session 22). Same number of levels as iterations
+    large_motion_iterations: list[int] = field(default_factory=lambda: [12, 8, 4])
     depth_min_m: float = 0.2
     depth_max_m: float = 4.0
     # ICP uses depth up to this range (a Kinect's depth noise grows as z^2 and is structured

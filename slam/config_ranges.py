@@ -52,6 +52,8 @@ def _tracking(t: TrackingConfig) -> list[Check]:
         (t.downsample in (1, 2, 4), "tracking.downsample", t.downsample, "1, 2 or 4"),
         (len(t.iterations) >= 1, "tracking.iterations", t.iterations, "a non-empty list (iterations per pyramid level, coarse to fine)"),
         (all(i >= 0 for i in t.iterations) and sum(t.iterations) > 0, "tracking.iterations", t.iterations, "non-negative counts, not all 0"),
+        (len(t.large_motion_iterations) == len(t.iterations), "tracking.large_motion_iterations", t.large_motion_iterations, f"one count per level of tracking.iterations ({len(t.iterations)} levels)"),
+        (all(i >= 0 for i in t.large_motion_iterations) and sum(t.large_motion_iterations) > 0, "tracking.large_motion_iterations", t.large_motion_iterations, "non-negative counts, not all 0"),
         (t.depth_min_m >= 0, "tracking.depth_min_m", t.depth_min_m, ">= 0"),
         (t.depth_max_m > t.depth_min_m, "tracking.depth_max_m", t.depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),
         (t.icp_depth_max_m > t.depth_min_m, "tracking.icp_depth_max_m", t.icp_depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),

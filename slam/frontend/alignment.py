@@ -65,6 +65,9 @@ class Attempt:
     # colour joins depth in every alignment of this attempt (weight of the photometric term;
     # 0: depth alone, unless tracking.photometric_weight puts colour everywhere)
     photometric: float = 0.0
+    # ICP iterations per level of this attempt's alignments (None: tracking.iterations; a
+    # large or unknown motion: tracking.large_motion_iterations)
+    iterations: list[int] | None = None
 
     def keep(self, T_world_cam: np.ndarray, icp: IcpResult, overlap: float) -> None:
         self.T_world_cam, self.icp, self.overlap = T_world_cam, icp, overlap
@@ -149,12 +152,12 @@ def align_to_model(
             render.depth_m, p.K_track, T_world_guess, refs, cfg.max_correspondence_m
         )
         target = RgbdImage(render.depth_m, grey_ref, p.K_track, len(cfg.iterations))
-        icp = p.joint_to(target, np.eye(4), cfg, joint)
+        icp = p.joint_to(target, np.eye(4), cfg, joint, iterations=att.iterations)
     elif joint is not None and render.color is not None:
         target = RgbdImage(render.depth_m, grey(render.color), p.K_track, len(cfg.iterations))
-        icp = p.joint_to(target, np.eye(4), cfg, joint)
+        icp = p.joint_to(target, np.eye(4), cfg, joint, iterations=att.iterations)
     else:
-        icp = p.icp_to(render.depth_m, np.eye(4), cfg)
+        icp = p.icp_to(render.depth_m, np.eye(4), cfg, att.iterations)
     step = icp.T_target_source
     if trusted and (
         translation_norm(step) > cfg.max_model_correction_m
@@ -193,9 +196,11 @@ def align_from(
             prev = att.prev_frame.photometric_image(len(cfg.iterations))
         if joint is not None and prev is not None:
             assert att.prev_frame is not None
-            f2f = p.joint_to(prev, T_prev_cur, cfg, joint, att.prev_frame.T_depth_colour)
+            f2f = p.joint_to(
+                prev, T_prev_cur, cfg, joint, att.prev_frame.T_depth_colour, att.iterations
+            )
         else:
-            f2f = p.icp_to(att.prev_depth, T_prev_cur, cfg)
+            f2f = p.icp_to(att.prev_depth, T_prev_cur, cfg, att.iterations)
         att.status.f2f_fitness = round(float(f2f.fitness), 4)
         if f2f.fitness >= cfg.min_fitness and (
             translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source) <= cfg.max_step_translation_m

@@ -213,16 +213,21 @@ class PreparedFrame:
         return KeyframeView(self.features or FeatureSet.empty(), self.depth_m, self.K_track)
 
     def icp_to(
-        self, target_depth: np.ndarray | list[np.ndarray], T_init: np.ndarray, cfg: TrackingConfig
+        self,
+        target_depth: np.ndarray | list[np.ndarray],
+        T_init: np.ndarray,
+        cfg: TrackingConfig,
+        iterations: list[int] | None = None,
     ) -> IcpResult:
         """Point-to-plane projective ICP of this frame to a target depth image (or pyramid) in
-        the same camera; ``T_init``: the initial ``T_target_source``."""
+        the same camera; ``T_init``: the initial ``T_target_source``; ``iterations`` per level
+        (default ``cfg.iterations``)."""
         return projective_icp(
             self.pyramid,
             target_depth,
             self.K_track,
             T_init,
-            cfg.iterations,
+            cfg.iterations if iterations is None else iterations,
             self.icp_depth_max_m,
             cfg.max_correspondence_m,
             cfg.huber_delta_m,
@@ -238,18 +243,20 @@ class PreparedFrame:
         cfg: TrackingConfig,
         weight: float | None = None,
         target_colour: np.ndarray | None = None,
+        iterations: list[int] | None = None,
     ) -> IcpResult:
         """Joint photometric + geometric alignment of this frame to ``target`` (needs
         ``rgbd``); ``weight``: of the photometric term (default ``cfg.photometric_weight``).
         Along directions depth constrains ``degenerate_ratio`` times worse than its best,
         colour decides alone. ``target_colour``: the target's ``T_depth_colour`` (None: its
-        colour was seen from its depth camera, as a model view's is)."""
+        colour was seen from its depth camera, as a model view's is); ``iterations`` per level
+        (default ``cfg.iterations``)."""
         assert self.rgbd is not None
         return joint_align(
             self.rgbd,
             target,
             T_init,
-            cfg.iterations,
+            cfg.iterations if iterations is None else iterations,
             cfg.max_correspondence_m,
             cfg.huber_delta_m,
             cfg.coarse_correspondence_factor,

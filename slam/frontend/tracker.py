@@ -187,7 +187,8 @@ class Tracker:
         """Stage 1: the constant-velocity motion ``T_prev_cur`` over this frame's interval
         (``dt_ratio`` usual intervals, at most :data:`MAX_EXTRAPOLATION`), and whether it is
         large (or the frame follows a gap, or is the first since tracking started: its motion
-        is unknown): then the prediction alone is not trusted. A frame
+        is unknown): then the prediction alone is not trusted, and every ICP of the frame runs
+        ``large_motion_iterations`` (a far start needs more Gauss-Newton steps). A frame
         whose depth is blind in one direction (``constraint_ratio`` above
         ``degenerate_ratio``), or weak in it (above ``photometric_ratio``) while the predicted
         motion is not fast and no gap precedes it, is aligned with colour joining depth (where
@@ -207,6 +208,8 @@ class Tracker:
         if st.prev_depth is not None:
             prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
         att = Attempt(p, status, st.T_world_prev, velocity, large, verify, dt_ratio, first_step)
+        if large:  # a far start: more Gauss-Newton steps to converge
+            att.iterations = cfg.large_motion_iterations
         att.prev_depth, att.prev_frame = prev, st.prev_frame
         att.references = list(st.references)
         status.constraint_ratio = round(p.constraint_ratio, 2)

@@ -160,6 +160,26 @@ def test_predict_scales_the_velocity_by_the_interval_and_flags_large_motion(worl
     assert gap.large and gap.verify and gap.status.gap
 
 
+def test_a_large_or_unknown_motion_gets_the_large_motion_iterations(world, model, monkeypatch):
+    tracker = _tracker_at(world, 5, large_motion_iterations=[9, 7, 5])
+    tracker.state.velocity = _motion(0.02, 1.0)
+    p = tracker.prepare(world.frame(6))
+    assert tracker.predict(p).iterations is None  # tracking.iterations
+    gap = tracker.predict(p, verify=True)
+    assert gap.large and gap.iterations == [9, 7, 5]
+    # every ICP of the attempt (frame to frame, frame to model) runs on that budget
+    seen = []
+    real = frame_module.projective_icp
+
+    def spy(*args, **kw):
+        seen.append(list(args[4]))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(frame_module, "projective_icp", spy)
+    align_from(tracker.cfg, gap, model, inv_T(world.poses[5]) @ world.poses[6], True)
+    assert seen == [[9, 7, 5], [9, 7, 5]]
+
+
 def test_seed_is_a_ransac_pose_under_large_motion_and_the_prediction_otherwise(world):
     tracker = _tracker_at(world, 0)
     p = tracker.prepare(world.frame(5))  # 8.6 cm and 8.1 deg from frame 0
