@@ -160,23 +160,7 @@ def run(
     from slam.pipeline import summary_line
 
     setup_logging(verbose, quiet)
-    if resume is not None and (sequence is not None or config is not None or max_frames):
-        raise SlamError(
-            "--resume continues a run with its own sequence and config: give no SEQUENCE, "
-            "--config or --max-frames with it"
-        )
-    if workers > 1 and (rerun is not None or resume is not None):
-        raise SlamError(
-            "--workers tracks frames in other processes: no --rerun recording with it (record "
-            "the finished run with `slam view RUN_DIR`); --resume continues a parallel run "
-            "with its own workers, give no --workers with it"
-        )
-    if ray is not None and workers < 2:
-        raise SlamError("--ray runs chunks of a parallel run: give --workers N (N >= 2) with it")
-    if rerun is not None:
-        from slam.tools.viewer import check_recording_path
-
-        check_recording_path(rerun)
+    _check_run_options(sequence, config, max_frames, resume, workers, rerun, ray)
     if sequence is None and resume is None:
         sequence = _generate_demo(quiet)
     bar = _RunProgress(quiet, parallel=workers > 1 or _chunked_run(resume))
@@ -210,6 +194,35 @@ def run(
     if rerun is not None:
         cli_app.console.print(f"[green]wrote[/] {escape(f'{rerun} (open it with `rerun {rerun}`)')}")
     typer.echo(summary_line(result.metrics))
+
+
+def _check_run_options(
+    sequence: Path | None,
+    config: Path | None,
+    max_frames: int | None,
+    resume: Path | None,
+    workers: int,
+    rerun: Path | None,
+    ray: str | None,
+) -> None:
+    """Options of `slam run` that do not go together, refused before anything runs."""
+    if resume is not None and (sequence is not None or config is not None or max_frames):
+        raise SlamError(
+            "--resume continues a run with its own sequence and config: give no SEQUENCE, "
+            "--config or --max-frames with it"
+        )
+    if workers > 1 and (rerun is not None or resume is not None):
+        raise SlamError(
+            "--workers tracks frames in other processes: no --rerun recording with it (record "
+            "the finished run with `slam view RUN_DIR`); --resume continues a parallel run "
+            "with its own workers, give no --workers with it"
+        )
+    if ray is not None and workers < 2:
+        raise SlamError("--ray runs chunks of a parallel run: give --workers N (N >= 2) with it")
+    if rerun is not None:
+        from slam.tools.viewer import check_recording_path
+
+        check_recording_path(rerun)
 
 
 @command(short_help="Write (and --open) the rerun 3D recording of a finished run.")

@@ -37,6 +37,7 @@ from slam.pipeline import (
     new_system,
     summary_line,
 )
+from slam.records import RunMetrics
 from slam.results import RunResult
 from slam.run_folder.checkpoint import read_checkpoint
 from slam.run_folder.layout import CHUNKS_DIR, CHUNKS_FILE
@@ -116,8 +117,7 @@ def run_chunked(
     if progress is not None:
         progress(len(indices), len(indices), None)
     t_tracked = time.perf_counter()
-    registered = color_registered(sequence, cfg)
-    joiner = Joiner(cfg, sequence.has_color, registered)
+    joiner = Joiner(cfg, sequence.has_color, color_registered(sequence, cfg))
     for c in chunks:
         cut = indices[c.keep_stop] if c.keep_stop < len(indices) else float("inf")
         joiner.add(c, _load_part(run_dir, c, sequence, cfg), cut)
@@ -125,18 +125,7 @@ def run_chunked(
     result = joiner.system.finish()
     t_end = time.perf_counter()
     m = result.metrics
-    m.sequence, m.workers = str(sequence.path), len(chunks)
-    wall = t_end - t0
-    m.seconds = round(wall, 3)
-    m.fps = round((m.frames + m.frames_skipped) / wall, 3)
-    m.real_time_factor = real_time_factor([s.timestamp for s in result.tracking], wall)
-    m.peak_rss_mb = max(
-        [round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)]
-        + [r.get("peak_rss_mb", 0.0) for r in reports]
-    )
-    m.update(evaluate_against_ground_truth(
-        sequence, result.trajectory, result.odometry, result.pose_graph
-    ))  # fmt: skip
+    _add_metrics(m, sequence, result, len(chunks), reports, t_end - t0)
     summary = {
         "workers": workers,
         "overlap": overlap,
@@ -150,12 +139,35 @@ def run_chunked(
             "chunks": round(t_tracked - t0, 3),
             "join": round(t_joined - t_tracked, 3),
             "finish": round(t_end - t_joined, 3),
-            "total": round(wall, 3),
+            "total": round(t_end - t0, 3),
         },
     }  # fmt: skip
     atomic_write_text(Path(run_dir) / CHUNKS_FILE, json.dumps(summary, indent=1) + "\n")
     log.info("%s (%d workers): %s", sequence.name, len(chunks), summary_line(m.as_json()))
     return result
+
+
+def _add_metrics(
+    m: RunMetrics,
+    sequence: Sequence,
+    result: RunResult,
+    n_chunks: int,
+    reports: list[dict[str, Any]],
+    wall: float,
+) -> None:
+    """The joined run's wall-clock figures (over all workers; peak memory: the largest
+    process's) and its evaluation against ground truth."""
+    m.sequence, m.workers = str(sequence.path), n_chunks
+    m.seconds = round(wall, 3)
+    m.fps = round((m.frames + m.frames_skipped) / wall, 3)
+    m.real_time_factor = real_time_factor([s.timestamp for s in result.tracking], wall)
+    m.peak_rss_mb = max(
+        [round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)]
+        + [r.get("peak_rss_mb", 0.0) for r in reports]
+    )
+    m.update(evaluate_against_ground_truth(
+        sequence, result.trajectory, result.odometry, result.pose_graph
+    ))  # fmt: skip
 
 
 @contextmanager

@@ -69,25 +69,63 @@ def projective_icp(
             max_correspondence_m, huber_delta_m, coarse_factor, noise, source_points,
         )  # fmt: skip
     if coarse_factor != 1.0 and levels > 1:
-        src_pyr = _pyramid(source_depth_m, levels)
-        tgt_pyr = _pyramid(target_depth_m, levels)
-        T = np.asarray(init_T_target_source, float)
-        for level in reversed(range(levels)):
-            scale = coarse_factor**level
-            res = projective_icp(
-                src_pyr[level],
-                tgt_pyr[level],
-                scale_intrinsics(K, 2**level),
-                T,
-                [iterations[levels - 1 - level]],
-                depth_max_m,
-                max_correspondence_m * scale,
-                huber_delta_m * scale,
-            )
-            if res.fitness == 0.0:
-                return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)
-            T = res.T_target_source
-        return res
+        return _coarse_to_fine(
+            source_depth_m, target_depth_m, K, init_T_target_source, iterations, depth_max_m,
+            max_correspondence_m, huber_delta_m, coarse_factor,
+        )  # fmt: skip
+    return _open3d_icp(
+        source_depth_m, target_depth_m, K, init_T_target_source, iterations, depth_max_m,
+        max_correspondence_m, huber_delta_m,
+    )  # fmt: skip
+
+
+def _coarse_to_fine(
+    source_depth_m: Depth,
+    target_depth_m: Depth,
+    K: np.ndarray,
+    init_T_target_source: np.ndarray,
+    iterations: list[int],
+    depth_max_m: float,
+    max_correspondence_m: float,
+    huber_delta_m: float,
+    coarse_factor: float,
+) -> IcpResult:
+    """Open3D's kernel one level at a time, coarse to fine, the correspondence distance and
+    Huber delta ``coarse_factor`` times larger per level above the finest."""
+    levels = len(iterations)
+    src_pyr = _pyramid(source_depth_m, levels)
+    tgt_pyr = _pyramid(target_depth_m, levels)
+    T = np.asarray(init_T_target_source, float)
+    for level in reversed(range(levels)):
+        scale = coarse_factor**level
+        res = _open3d_icp(
+            src_pyr[level],
+            tgt_pyr[level],
+            scale_intrinsics(K, 2**level),
+            T,
+            [iterations[levels - 1 - level]],
+            depth_max_m,
+            max_correspondence_m * scale,
+            huber_delta_m * scale,
+        )
+        if res.fitness == 0.0:
+            return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)
+        T = res.T_target_source
+    return res
+
+
+def _open3d_icp(
+    source_depth_m: Depth,
+    target_depth_m: Depth,
+    K: np.ndarray,
+    init_T_target_source: np.ndarray,
+    iterations: list[int],
+    depth_max_m: float,
+    max_correspondence_m: float,
+    huber_delta_m: float,
+) -> IcpResult:
+    """Open3D's multi-scale point-to-plane kernel, one correspondence distance on every level
+    (pyramids given: their finest level; Open3D builds its own)."""
     source_depth_m = source_depth_m[0] if isinstance(source_depth_m, list) else source_depth_m
     target_depth_m = target_depth_m[0] if isinstance(target_depth_m, list) else target_depth_m
     src_d = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(source_depth_m, np.float32)))

@@ -68,6 +68,67 @@ class SourcePoints:
         return SourcePoints(pts, noise.sigma(pts[:, 2]), normal[v, u])
 
 
+Columns = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+@dataclass
+class _Target:
+    """A target vertex and normal map as flat x, y, z columns, and its camera."""
+
+    vertex: Columns
+    normal: Columns
+    K: np.ndarray
+    size: tuple[int, int]  # (h, w)
+
+    @staticmethod
+    def of(tgt_vertex: np.ndarray, tgt_normal: np.ndarray, K: np.ndarray) -> _Target:
+        def columns(a: np.ndarray) -> Columns:
+            return tuple(np.ascontiguousarray(a[..., k]).reshape(-1) for k in range(3))  # type: ignore[return-value]
+
+        return _Target(columns(tgt_vertex), columns(tgt_normal), K, tgt_vertex.shape[:2])
+
+    def associate(
+        self, src: SourcePoints, T: np.ndarray, gate_m: float, min_normal_cos: float
+    ) -> tuple[Columns, Columns, np.ndarray, np.ndarray] | None:
+        """Projective correspondences of the source points moved by ``T``: the moved points,
+        the target normals, the point-to-plane residuals and the points' depth noise, of the
+        pairs within ``gate_m`` plus 3 sigma whose normals agree (cosine >= ``min_normal_cos``;
+        unknown target normals are 0 and fail). None when fewer than 6 remain."""
+        h, w = self.size
+        vx, vy, vz = self.vertex
+        nx, ny, nz = self.normal
+        px, py, pz = src.columns()
+        sx, sy, sz = src.normal_columns()
+        f32 = np.float32
+        K = self.K
+        fx, fy, cx, cy = (f32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+        R, t = T[:3, :3].astype(f32), T[:3, 3].astype(f32)
+        qx = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz + t[0]
+        qy = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz + t[1]
+        qz = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz + t[2]
+        front = qz > f32(1e-3)
+        inv_z = f32(1.0) / np.where(front, qz, f32(1.0))
+        ui = (fx * qx * inv_z + cx + f32(0.5)).astype(np.int32)
+        vi = (fy * qy * inv_z + cy + f32(0.5)).astype(np.int32)
+        idx = np.flatnonzero(front & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h))
+        pix = vi[idx] * w + ui[idx]
+        ax, ay, az = qx[idx], qy[idx], qz[idx]
+        mx, my, mz = nx[pix], ny[pix], nz[pix]
+        res = (ax - vx[pix]) * mx + (ay - vy[pix]) * my + (az - vz[pix]) * mz
+        sig = src.sigma[idx]
+        # the source normal, rotated into the target camera, against the target's
+        cos = (
+            (R[0, 0] * sx[idx] + R[0, 1] * sy[idx] + R[0, 2] * sz[idx]) * mx
+            + (R[1, 0] * sx[idx] + R[1, 1] * sy[idx] + R[1, 2] * sz[idx]) * my
+            + (R[2, 0] * sx[idx] + R[2, 1] * sy[idx] + R[2, 2] * sz[idx]) * mz
+        )
+        keep = np.flatnonzero((np.abs(res) < f32(gate_m) + 3 * sig) & (cos >= min_normal_cos))
+        if len(keep) < 6:
+            return None
+        moved = (ax[keep], ay[keep], az[keep])
+        return moved, (mx[keep], my[keep], mz[keep]), res[keep], sig[keep]
+
+
 @dataclass
 class WeightedIcp:
     """The outcome of :func:`weighted_point_to_plane`: ``T_target_source``, its information
@@ -101,46 +162,18 @@ def weighted_point_to_plane(
     (measured on the first iteration: the noise model gives the shape, the data the level).
     None when fewer than 6 points correspond. Arrays are handled by component (x, y, z
     columns): ~4x faster than (N, 3) rows in numpy."""
-    h, w = tgt_vertex.shape[:2]
-    vx, vy, vz = (np.ascontiguousarray(tgt_vertex[..., k]).reshape(-1) for k in range(3))
-    nx, ny, nz = (np.ascontiguousarray(tgt_normal[..., k]).reshape(-1) for k in range(3))
-    px, py, pz = src.columns()
-    sx, sy, sz = src.normal_columns()
-    f32 = np.float32
-    fx, fy, cx, cy = (f32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    target = _Target.of(tgt_vertex, tgt_normal, K)
     T = np.asarray(T_init, float).copy()
     scale = None
     H = np.zeros((6, 6))
     r = np.zeros(0, np.float32)
     qz_kept = np.zeros(0, np.float32)
+    f32 = np.float32
     for _ in range(max(int(iterations), 1)):
-        R, t = T[:3, :3].astype(f32), T[:3, 3].astype(f32)
-        qx = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz + t[0]
-        qy = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz + t[1]
-        qz = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz + t[2]
-        front = qz > f32(1e-3)
-        inv_z = f32(1.0) / np.where(front, qz, f32(1.0))
-        ui = (fx * qx * inv_z + cx + f32(0.5)).astype(np.int32)
-        vi = (fy * qy * inv_z + cy + f32(0.5)).astype(np.int32)
-        idx = np.flatnonzero(front & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h))
-        pix = vi[idx] * w + ui[idx]
-        ax, ay, az = qx[idx], qy[idx], qz[idx]
-        mx, my, mz = nx[pix], ny[pix], nz[pix]
-        res = (ax - vx[pix]) * mx + (ay - vy[pix]) * my + (az - vz[pix]) * mz
-        sig = src.sigma[idx]
-        # the source normal, rotated into the target camera, against the target's (unknown
-        # target normals are 0 and fail)
-        i3 = idx
-        cos = (
-            (R[0, 0] * sx[i3] + R[0, 1] * sy[i3] + R[0, 2] * sz[i3]) * mx
-            + (R[1, 0] * sx[i3] + R[1, 1] * sy[i3] + R[1, 2] * sz[i3]) * my
-            + (R[2, 0] * sx[i3] + R[2, 1] * sy[i3] + R[2, 2] * sz[i3]) * mz
-        )
-        keep = np.flatnonzero((np.abs(res) < f32(gate_m) + 3 * sig) & (cos >= min_normal_cos))
-        if len(keep) < 6:
+        kept = target.associate(src, T, gate_m, min_normal_cos)
+        if kept is None:
             return None
-        r, sig = res[keep], sig[keep]
-        ax, ay, az, mx, my, mz = ax[keep], ay[keep], az[keep], mx[keep], my[keep], mz[keep]
+        (ax, ay, az), (mx, my, mz), r, sig = kept
         e = r / sig
         if scale is None:
             scale = max(_MAD * float(np.median(np.abs(e))), 1e-3)
@@ -161,7 +194,7 @@ def weighted_point_to_plane(
     return WeightedIcp(
         T,
         H,
-        len(r) / max(len(px), 1),
+        len(r) / max(len(src.points), 1),
         float(np.sqrt(np.mean(np.square(r, dtype=np.float64)))),
         float(np.median(qz_kept)),
     )

@@ -149,11 +149,40 @@ def render_frame(
     cfg.validate()
     sc = _as_synth_scene(scene, cfg)
     W, H = int(cfg.width), int(cfg.height)
-    N = W * H
     T = np.asarray(T_world_cam, dtype=np.float64)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"render_frame: T_world_cam must be a finite 4x4 matrix, got {T.shape}")
     cam = _camera_rays(W, H, float(cfg.fx), float(cfg.fy), float(cfg.cx), float(cfg.cy))
+    z, hit, obj, normal, d_world = _cast(sc, cam, T)
+    color = _shaded_texture(sc, cam, T, z, obj, normal, (H, W)).reshape(H, W, 3)
+    if cfg.drift_bias:
+        r2 = cam.xn * cam.xn + cam.yn * cam.yn
+        z = z * (np.float32(1.0) + np.float32(cfg.drift_bias) * r2)
+    if cfg.noise:
+        if rng is None:
+            rng = np.random.default_rng(int(cfg.seed))
+        # |cos| between ray and surface normal (world frame), for grazing-angle dropouts
+        ray_dot = cv2.transform(normal * d_world, np.ones((1, 3), np.float32)).reshape(-1)
+        cosang = np.abs(ray_dot) * cam.inv_len
+        depth = _noisy_depth(z.reshape(H, W), hit.reshape(H, W), cosang.reshape(H, W), cfg, rng)
+        # grey (channel-correlated) Gaussian pixel noise
+        noise = rng.standard_normal((H, W, 1), dtype=np.float32) * np.float32(COLOR_NOISE_SIGMA)
+        color += noise
+    else:
+        depth = z.reshape(H, W)
+    max_depth = np.float32(SENSOR_MAX_DEPTH_M.get(cfg.scene, MAX_DEPTH))
+    depth = np.where((depth >= MIN_DEPTH) & (depth <= max_depth), depth, np.float32(0.0))
+    color_u8 = cv2.convertScaleAbs(np.maximum(color, 0.0, out=color))  # rounds and saturates
+    return color_u8, depth.astype(np.float32, copy=False)
+
+
+def _cast(
+    sc: SynthScene, cam: _CameraRays, T: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The camera's rays cast into the scene: z depth (0 where nothing is hit), the hit mask,
+    the object each pixel sees (``n_obj`` where none), the surface normal (world frame, (N, 1,
+    3)) and the ray directions (world frame, (N, 1, 3))."""
+    N = len(cam.xn)
     R = np.ascontiguousarray(T[:3, :3], dtype=np.float32)
     origin = T[:3, 3].astype(np.float32)
     d_world = cv2.transform(cam.d_cam, R)  # (N, 1, 3)
@@ -166,7 +195,17 @@ def render_frame(
     hit = np.isfinite(t_hit)
     z = np.where(hit, t_hit, np.float32(0.0))
     obj = np.take(sc.tri_obj, np.where(hit, prim, sc.n_tri))
+    return z, hit, obj, normal, d_world
 
+
+def _shaded_texture(
+    sc: SynthScene, cam: _CameraRays, T: np.ndarray, z: np.ndarray, obj: np.ndarray,
+    normal: np.ndarray, size: tuple[int, int],
+) -> np.ndarray:  # fmt: skip
+    """(N, 3) float32 colour of the hit points of an image of ``size`` (H, W): each object's
+    tri-planar texture in its own frame (the world's, or its cluster's), Lambertian-shaded by
+    fixed lights, through the object's albedo palette."""
+    N = len(z)
     # --- hit points and normals in each object's texture frame (world, or its cluster's frame)
     pc = cv2.merge([cam.xn * z, cam.yn * z, z]).reshape(N, 1, 3)  # camera-frame points
     p = cv2.transform(pc, T[:3, :].astype(np.float32))
@@ -199,12 +238,9 @@ def render_frame(
     mapx = tu * scale + np.take(sc.offsets[:, 0], face)
     mapy = tv * scale + np.take(sc.offsets[:, 1], face)
     tex = cv2.remap(
-        sc.texture,
-        mapx.reshape(H, W),
-        mapy.reshape(H, W),
-        cv2.INTER_LINEAR,
+        sc.texture, mapx.reshape(size), mapy.reshape(size), cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_WRAP,
-    ).reshape(N, 2)
+    ).reshape(N, 2)  # fmt: skip
 
     # --- shading (Lambertian, fixed lights, object-local normals) and albedo palette
     shade = np.full(N, _AMBIENT, np.float32)
@@ -214,27 +250,7 @@ def render_frame(
     lum = tex[:, 0] * shade
     lut_index: np.ndarray = obj * 256 + tex[:, 1].astype(np.int32)
     albedo = np.take(sc.albedo_lut, lut_index, axis=0)
-    color = np.multiply(albedo, lum[:, None], out=albedo).reshape(H, W, 3)
-
-    if cfg.drift_bias:
-        r2 = cam.xn * cam.xn + cam.yn * cam.yn
-        z = z * (np.float32(1.0) + np.float32(cfg.drift_bias) * r2)
-    if cfg.noise:
-        if rng is None:
-            rng = np.random.default_rng(int(cfg.seed))
-        # |cos| between ray and surface normal (world frame), for grazing-angle dropouts
-        ray_dot = cv2.transform(normal * d_world, np.ones((1, 3), np.float32)).reshape(-1)
-        cosang = np.abs(ray_dot) * cam.inv_len
-        depth = _noisy_depth(z.reshape(H, W), hit.reshape(H, W), cosang.reshape(H, W), cfg, rng)
-        # grey (channel-correlated) Gaussian pixel noise
-        noise = rng.standard_normal((H, W, 1), dtype=np.float32) * np.float32(COLOR_NOISE_SIGMA)
-        color += noise
-    else:
-        depth = z.reshape(H, W)
-    max_depth = np.float32(SENSOR_MAX_DEPTH_M.get(cfg.scene, MAX_DEPTH))
-    depth = np.where((depth >= MIN_DEPTH) & (depth <= max_depth), depth, np.float32(0.0))
-    color_u8 = cv2.convertScaleAbs(np.maximum(color, 0.0, out=color))  # rounds and saturates
-    return color_u8, depth.astype(np.float32, copy=False)
+    return np.multiply(albedo, lum[:, None], out=albedo)
 
 
 def _noisy_depth(

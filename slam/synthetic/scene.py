@@ -4,6 +4,7 @@ ready for ray casting (:func:`build_scene`)."""
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from functools import lru_cache
 
 import cv2
@@ -46,9 +47,24 @@ def _room_layout(seed: int, alias: bool) -> Layout:
         L.add(name, vt, rng, tex, group)
 
     L.add_room(ROOM_MIN, ROOM_MAX, rng)
+    _clusters(L, add, seed, alias)
+    _table(add)
+    _shelf_wall(add, seed)
+    # wall -x: plant (pot + foliage sphere)
+    add("plant_pot", cylinder([-2.15, 1.35], 0.0, 0.17, 0.38))
+    add("plant_ball", sphere([-2.15, 1.35, 0.62], 0.27))
+    add("plant_poster", box([-2.497, 0.6, 1.2], [-2.48, 1.5, 1.85]))
+    _desk_wall(add)
+    return L
 
-    # --- wall +x (x = 2.5): cluster A (always present) and a table
-    # --- wall -x (x = -2.5): cluster B (alias: identical clone of A; else a sofa)
+
+#: ``add(name, (vertices, triangles), tex=None, group=-1)``: one object into the layout.
+Add = Callable[..., None]
+
+
+def _clusters(L: Layout, add: Add, seed: int, alias: bool) -> None:
+    """Wall +x (x = 2.5): cluster A (always present); wall -x (x = -2.5): cluster B (alias:
+    an identical clone of A, the revisit detector's trap), else a sofa."""
     cluster = _cluster_parts()
     cluster_rng = np.random.default_rng([int(seed), 0xC1A5])
     cluster_tex = [rand_tex(cluster_rng) for _ in cluster]
@@ -70,7 +86,9 @@ def _room_layout(seed: int, alias: bool) -> Layout:
         add("sofa_arm2", box([-2.495, 0.25, 0.0], [-1.75, 0.45, 0.62]))
         add("cushion", box([-2.2, -0.9, 0.45], [-2.05, -0.5, 0.75]))
 
-    # table near wall +x
+
+def _table(add: Add) -> None:
+    """A table near wall +x, with a sphere, a box and a can on it."""
     add("table_top", box([1.75, -1.45, 0.72], [2.45, -0.25, 0.76]))
     for i, (x, y) in enumerate([(1.78, -1.42), (2.37, -1.42), (1.78, -0.33), (2.37, -0.33)]):
         add(f"table_leg{i}", box([x, y, 0.0], [x + 0.05, y + 0.05, 0.72]))
@@ -78,7 +96,9 @@ def _room_layout(seed: int, alias: bool) -> Layout:
     add("table_box", box([1.9, -0.75, 0.76], [2.2, -0.45, 0.95]))
     add("table_can", cylinder([2.3, -1.25], 0.76, 0.05, 0.22))
 
-    # wall +y (y = 2): bookshelf, cabinet, picture frame
+
+def _shelf_wall(add: Add, seed: int) -> None:
+    """Wall +y (y = 2): a bookshelf with random books, a cabinet, a picture frame, boxes."""
     sx0, sx1, sy0, sy1 = 0.4, 1.45, 1.6, 1.995
     add("shelf_side1", box([sx0, sy0, 0.0], [sx0 + 0.03, sy1, 1.8]))
     add("shelf_side2", box([sx1 - 0.03, sy0, 0.0], [sx1, sy1, 1.8]))
@@ -105,12 +125,9 @@ def _room_layout(seed: int, alias: bool) -> Layout:
     add("box_stack1", box([1.8, 1.45, 0.0], [2.45, 1.95, 0.5]))
     add("box_stack2", box([1.9, 1.55, 0.5], [2.35, 1.9, 0.85]))
 
-    # wall -x: plant (pot + foliage sphere)
-    add("plant_pot", cylinder([-2.15, 1.35], 0.0, 0.17, 0.38))
-    add("plant_ball", sphere([-2.15, 1.35, 0.62], 0.27))
-    add("plant_poster", box([-2.497, 0.6, 1.2], [-2.48, 1.5, 1.85]))
 
-    # wall -y (y = -2): desk with monitor, chair, bin, lamp
+def _desk_wall(add: Add) -> None:
+    """Wall -y (y = -2): a desk with a monitor, a chair, a bin, a lamp, a crate."""
     add("desk_top", box([-0.2, -1.995, 0.72], [1.2, -1.4, 0.76]))
     add("desk_drawers", box([0.75, -1.95, 0.0], [1.15, -1.45, 0.72]))
     add("desk_leg1", box([-0.18, -1.95, 0.0], [-0.13, -1.45, 0.72]))
@@ -127,7 +144,6 @@ def _room_layout(seed: int, alias: bool) -> Layout:
     add("lamp_base", cylinder([-1.9, -1.6], 0.0, 0.15, 0.03))
     add("crate", box([-1.55, -1.95, 0.0], [-1.05, -1.5, 0.45]))
     add("wall_panel", box([-1.4, -1.997, 1.2], [-0.6, -1.98, 1.7]))
-    return L
 
 
 def _layout(seed: int, alias: bool, scene: str = "room") -> Layout:

@@ -20,7 +20,7 @@ import open3d as o3d
 from slam.errors import DatasetError
 from slam.geometry import exp_se3, inv_T, log_se3
 from slam.synthetic.config import SynthConfig
-from slam.synthetic.render import build_scene, render_frame
+from slam.synthetic.render import SynthScene, build_scene, render_frame
 from slam.synthetic.trajectory import make_trajectory
 from slam.trajectory import Trajectory, atomic_write_text, write_tum
 
@@ -127,8 +127,42 @@ def generate_sequence(
         cfg.alias,
     )
     color_dt_s = _color_offsets(cfg, len(traj))
-    color_rng = np.random.default_rng([int(cfg.seed), 2])  # the depth's noise stays the same
     names = [f"{i:06d}.png" for i in range(len(traj))]
+    t_render = _render_images(out, scene, traj, cfg, rng, color_dt_s, names, progress)
+    _write_lists(out, traj, color_dt_s, names)
+    write_tum(out / "groundtruth.txt", traj)
+    atomic_write_text(out / "calibration.yaml", _calibration_yaml(cfg))
+    tmp_ply = out / ".scene.tmp.ply"
+    # str path: accepted by every supported Open3D (0.18 takes str only, newer stubs say PathLike)
+    if not o3d.io.write_triangle_mesh(str(tmp_ply), scene.mesh, write_ascii=False):  # type: ignore[arg-type]
+        raise DatasetError(f"{tmp_ply}: writing the scene mesh failed")
+    os.replace(tmp_ply, out / "scene.ply")
+    _remove_frames_from(out, len(traj))
+    atomic_write_text(marker, json.dumps(asdict(cfg), sort_keys=True) + "\n")
+    dt = time.perf_counter() - t0
+    log.info(
+        "synthetic sequence %s done: %d frames in %.1f s (render %.1f ms/frame)",
+        out,
+        len(traj),
+        dt,
+        1000 * t_render / max(len(traj), 1),
+    )
+    return out
+
+
+def _render_images(
+    out: Path,
+    scene: SynthScene,
+    traj: Trajectory,
+    cfg: SynthConfig,
+    rng: np.random.Generator,
+    color_dt_s: np.ndarray,
+    names: list[str],
+    progress: Callable[[int, int], None] | None,
+) -> float:
+    """Every frame's colour (at its own instant, ``color_dt_s`` off the depth's) and depth
+    written as PNGs under ``out/rgb`` and ``out/depth``; returns the seconds spent rendering."""
+    color_rng = np.random.default_rng([int(cfg.seed), 2])  # the depth's noise stays the same
     t_render = 0.0
     pending: list[Future] = []
     with ThreadPoolExecutor(max_workers=2) as pool:  # PNG encoding overlaps with rendering
@@ -149,7 +183,11 @@ def generate_sequence(
                 progress(i + 1, len(traj))
         for fut in pending:
             fut.result()
+    return t_render
 
+
+def _write_lists(out: Path, traj: Trajectory, color_dt_s: np.ndarray, names: list[str]) -> None:
+    """``rgb.txt`` (each colour image at its own instant) and ``depth.txt``."""
     stamps = [f"{t:.6f}" for t in traj.timestamps]
     rgb_stamps = [f"{t:.6f}" for t in traj.timestamps + color_dt_s]
     atomic_write_text(
@@ -162,30 +200,17 @@ def generate_sequence(
         "# depth maps (synthetic, slam.synthetic)\n# timestamp filename\n"
         + "".join(f"{s} depth/{nm}\n" for s, nm in zip(stamps, names)),
     )
-    write_tum(out / "groundtruth.txt", traj)
-    atomic_write_text(out / "calibration.yaml", _calibration_yaml(cfg))
-    tmp_ply = out / ".scene.tmp.ply"
-    # str path: accepted by every supported Open3D (0.18 takes str only, newer stubs say PathLike)
-    if not o3d.io.write_triangle_mesh(str(tmp_ply), scene.mesh, write_ascii=False):  # type: ignore[arg-type]
-        raise DatasetError(f"{tmp_ply}: writing the scene mesh failed")
-    os.replace(tmp_ply, out / "scene.ply")
-    # frames left over from an earlier, longer generation into the same folder
+
+
+def _remove_frames_from(out: Path, n: int) -> None:
+    """Frames numbered ``n`` and above, left over from an earlier, longer generation into the
+    same folder."""
     frame_re = re.compile(r"^(\d{6})\.png$")
     for sub in ("rgb", "depth"):
         for p in (out / sub).iterdir():
             m = frame_re.match(p.name)
-            if m and int(m.group(1)) >= len(traj):
+            if m and int(m.group(1)) >= n:
                 p.unlink()
-    atomic_write_text(marker, json.dumps(asdict(cfg), sort_keys=True) + "\n")
-    dt = time.perf_counter() - t0
-    log.info(
-        "synthetic sequence %s done: %d frames in %.1f s (render %.1f ms/frame)",
-        out,
-        len(traj),
-        dt,
-        1000 * t_render / max(len(traj), 1),
-    )
-    return out
 
 
 def is_complete(out_dir: str | Path) -> bool:
