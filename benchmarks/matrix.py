@@ -19,7 +19,8 @@ Markdown table.
 
 ``--compare OLD NEW`` prints, per row, the change of odometry ATE, final ATE and worst step
 error, flagged when it exceeds the row's run-to-run spread (``--repeats`` > 1 measures it:
-the range over repeats; otherwise 10% + 0.5 mm is assumed) in both runs.
+the range over repeats; ``--spread FILE ...`` adds the ranges of other such runs, the largest
+counting; otherwise 10% + 0.5 mm is assumed) in both runs.
 """
 
 from __future__ import annotations
@@ -254,16 +255,37 @@ def table(rows: dict[str, dict]) -> str:
     return head + "\n".join(lines) + "\n"
 
 
-def _spread(r: dict, key: str) -> float:
+def _spread(r: dict, key: str, known: float | None = None) -> float:
+    """A row's spread in ``key``: the range measured over its repeats, or ``known`` (measured
+    in other runs: ``--spread``), the larger of the two; else the assumed DEFAULT_SPREAD."""
+    measured = [v for v in (r.get(f"{key}_range"), known) if v is not None]
+    if measured:
+        return max(measured)
     rel, floor = DEFAULT_SPREAD
-    measured = r.get(f"{key}_range")
-    return measured if measured is not None else rel * abs(r.get(key) or 0.0) + floor
+    return rel * abs(r.get(key) or 0.0) + floor
 
 
-def compare(old: dict, new: dict) -> tuple[str, int]:
-    """Per-row changes of the accuracy columns; a change beyond both runs' spreads is flagged.
-    Returns the text and the number of rows that got worse beyond their spread."""
+def measured_spreads(results: list[dict]) -> dict[str, dict[str, float]]:
+    """Per row and column, the largest range over repeats in these result files (written
+    with ``--repeats`` > 1): the run-to-run spread ``--compare`` then judges changes by."""
+    out: dict[str, dict[str, float]] = {}
+    for res in results:
+        for name, r in res.get("rows", {}).items():
+            for k, v in r.items():
+                if k.endswith("_range") and isinstance(v, (int, float)):
+                    key = k[: -len("_range")]
+                    out.setdefault(name, {})[key] = max(v, out.get(name, {}).get(key, 0.0))
+    return out
+
+
+def compare(
+    old: dict, new: dict, spreads: dict[str, dict[str, float]] | None = None
+) -> tuple[str, int]:
+    """Per-row changes of the accuracy columns; a change beyond both runs' spreads is flagged
+    (``spreads``: ranges measured in other runs, :func:`measured_spreads`). Returns the text
+    and the number of rows that got worse beyond their spread."""
     keys = ("ate_rmse_odometry_m", "ate_rmse_m", "step_err_max_m")
+    spreads = spreads or {}
     lines = ["| row | " + " | ".join(keys) + " | fps |", "|---" * (len(keys) + 2) + "|"]
     worse = 0
     for name in list(old["rows"]) + [n for n in new["rows"] if n not in old["rows"]]:
@@ -277,7 +299,8 @@ def compare(old: dict, new: dict) -> tuple[str, int]:
             if va is None or vb is None:
                 cells.append("-")
                 continue
-            tol = max(_spread(a, k), _spread(b, k))
+            known = spreads.get(name, {}).get(k)
+            tol = max(_spread(a, k, known), _spread(b, k, known))
             flag = " **worse**" if vb - va > tol else (" better" if va - vb > tol else "")
             bad |= vb - va > tol
             cells.append(f"{va:.4f} -> {vb:.4f}{flag}")
@@ -306,10 +329,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--small", action="store_true", help="CI version: 2 tiny synthetic rows")
     ap.add_argument("--out", type=Path, default=None, help="JSON path (default results/)")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("OLD", "NEW"))
+    ap.add_argument(
+        "--spread", nargs="+", type=Path, default=[], metavar="FILE",
+        help="with --compare: result files of --repeats runs whose ranges are the rows' spread",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     if args.compare:
         old, new = (json.loads(p.read_text()) for p in args.compare)
-        text, worse = compare(old, new)
+        spreads = measured_spreads([json.loads(p.read_text()) for p in args.spread])
+        text, worse = compare(old, new, spreads)
         print(text + f"\n{worse} row(s) worse beyond their spread")
         return 0
     if args.small:

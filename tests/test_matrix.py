@@ -73,3 +73,23 @@ def test_a_video_rate_real_sequence_runs_again_on_every_third_frame(tmp_path, mo
     (slow / "depth.txt").write_text("\n".join(f"{i * 0.66:.2f} d/{i}.png" for i in range(5)))
     (slow / "groundtruth.txt").write_text("0 0 0 0 0 0 0 1\n")
     assert [r.name for r in matrix.real_rows()] == ["seq", "slow", "seq-x3"]
+
+
+def test_compare_judges_a_change_by_the_spread_measured_in_other_runs():
+    matrix = _load("matrix")
+    old = {"rows": {"hall": {"ate_rmse_odometry_m": 0.0100, "step_err_max_m": 0.010}}}
+    new = {"rows": {"hall": {"ate_rmse_odometry_m": 0.0120, "step_err_max_m": 0.014}}}
+    # assumed spread (10% + 0.5 mm): both columns got worse
+    assert matrix.compare(old, new)[1] == 1
+    # three runs of the same code ranged 9 mm in odometry and 6 mm in worst step: spread
+    runs = {"hall": {"ate_rmse_odometry_m_range": 0.009, "step_err_max_m_range": 0.006}}
+    spreads = matrix.measured_spreads([{"rows": runs}])
+    assert spreads == {"hall": {"ate_rmse_odometry_m": 0.009, "step_err_max_m": 0.006}}
+    text, worse = matrix.compare(old, new, spreads)
+    assert worse == 0 and "**worse**" not in text
+    # a measured spread narrower than the change does not hide it (the largest range counts)
+    narrow = {"hall": {"ate_rmse_odometry_m_range": 0.003, "step_err_max_m_range": 0.001}}
+    spreads = matrix.measured_spreads([{"rows": narrow}, {"rows": runs}])
+    assert spreads["hall"]["ate_rmse_odometry_m"] == 0.009
+    text, worse = matrix.compare(old, new, matrix.measured_spreads([{"rows": narrow}]))
+    assert worse == 1 and text.count("**worse**") == 1  # the worst step's 4 mm
