@@ -9,9 +9,10 @@ Whole runs cannot say whether the colour term is a better measurement than depth
 step mixes its alignment with the model, the keyframes' colour and the motion checks. Here each
 pair ``(i - 1, i)`` is aligned frame to frame, starting at the ground-truth step (so basins and
 predictions play no part), with the default config's alignments:
-``PreparedFrame.icp_to`` (depth alone) and ``PreparedFrame.joint_to`` at each photometric
-``--weights`` (both colour cameras placed along the true step, as tracking places them along
-its estimate). The error is the distance of the result from the true step (mm, translation;
+``PreparedFrame.icp_to`` (depth alone: Open3D's ICP) and ``PreparedFrame.joint_to`` at each
+photometric ``--weights`` (both colour cameras placed along the true step, as tracking places
+them along its estimate). Weight 0 is the joint alignment's own geometric term alone: what
+colour adds is measured against it. The error is the distance of the result from the true step (mm, translation;
 it includes the ground truth's own noise). The cycle error needs no ground truth: the pairs
 ``(i - 2, i - 1)`` and ``(i - 1, i)`` aligned the same way, composed, against ``(i - 2, i)``
 aligned directly (a measurement's scatter; a bias common to the three cancels). Only rows
@@ -146,7 +147,7 @@ def pair_errors(
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--weights", default="1,10", help="photometric weights of the joint runs")
+    ap.add_argument("--weights", default="0,1,10", help="photometric weights of the joint runs")
     ap.add_argument("--every", type=int, default=4, help="every n-th pair")
     ap.add_argument("--frames", type=int, default=240, help="frames of each synthetic row")
     ap.add_argument("--only", default="", help="comma-separated substrings of row names")
