@@ -1,24 +1,28 @@
-"""Colour against depth, one frame pair at a time: each consecutive pair aligned from its true
-motion, by depth alone and by colour joining depth, and how far each moves off the truth.
+"""Colour against depth, frame to frame: consecutive frames aligned from their true motion, by
+depth alone and by colour joining depth, with how far each lands off the truth and off itself.
 
     python benchmarks/colour_depth_pairs.py                    # registered-colour rows, x2 kinds
-    python benchmarks/colour_depth_pairs.py --only tum-fr1-xyz --weights 1,3,10
-    python benchmarks/colour_depth_pairs.py --only tum-fr1-xyz --shift 0,-1.3 --blur 1
+    python benchmarks/colour_depth_pairs.py --only tum-fr1-xyz --weights 0,0.1,1,10
+    python benchmarks/colour_depth_pairs.py --only room-x2 --noise 8,2 --vignette 0.5
 
 Whole runs cannot say whether the colour term is a better measurement than depth: a frame's
-step mixes its alignment with the model, the keyframes' colour and the motion checks. Here each
-pair ``(i - 1, i)`` is aligned frame to frame, starting at the ground-truth step (so basins and
-predictions play no part), with the default config's alignments:
-``PreparedFrame.icp_to`` (depth alone: Open3D's ICP) and ``PreparedFrame.joint_to`` at each
-photometric ``--weights`` (both colour cameras placed along the true step, as tracking places
-them along its estimate). Weight 0 is the joint alignment's own geometric term alone: what
-colour adds is measured against it. The error is the distance of the result from the true step (mm, translation;
-it includes the ground truth's own noise). The cycle error needs no ground truth: the pairs
-``(i - 2, i - 1)`` and ``(i - 1, i)`` aligned the same way, composed, against ``(i - 2, i)``
-aligned directly (a measurement's scatter; a bias common to the three cancels). Only rows
-whose colour is registered to depth. ``--shift``, ``--blur``, ``--noise``, ``--vignette`` and
-``--jpeg`` alter the colour images first (:class:`Alteration`): what a real camera's colour
-has that the generator's lacks. Writes
+step mixes its alignment with the model, the keyframes' colour and the motion checks. Here the
+frames of each triplet ``(i - 2, i - 1, i)`` are aligned pairwise, frame to frame, each pair
+starting at its ground-truth step (so basins and predictions play no part), with the default
+config's alignments: ``PreparedFrame.icp_to`` (depth alone: Open3D's ICP) and
+``PreparedFrame.joint_to`` at each photometric ``--weights`` (both colour cameras placed along
+the true step, as tracking places them along its estimate). Weight 0 is the joint alignment's
+own geometric term alone: what colour adds is read against it.
+
+Two errors, in mm of translation:
+- the step ``i - 1 -> i`` against the ground truth (it includes the ground truth's own error);
+- the cycle error, which needs no ground truth: the steps ``i - 2 -> i - 1`` and
+  ``i - 1 -> i`` composed, against ``i - 2 -> i`` aligned directly (a measurement's scatter; a
+  bias common to the three cancels).
+
+Only rows whose colour is registered to depth. ``--shift``, ``--blur``, ``--noise``,
+``--vignette`` and ``--jpeg`` alter the colour images first (:class:`Alteration`): what a real
+camera's colour may have that the generator's lacks. Writes
 ``results/colour-depth-pairs[-TAG].json`` and prints a table.
 """
 
@@ -80,8 +84,8 @@ class Alteration:
             img += self.noise * n[..., None]
         c = np.clip(np.rint(img), 0, 255).astype(np.uint8)
         if self.jpeg_quality > 0:
-            ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(c[..., ::-1]),
-                                   [cv2.IMWRITE_JPEG_QUALITY, int(self.jpeg_quality)])  # fmt: skip
+            _, buf = cv2.imencode(".jpg", np.ascontiguousarray(c[..., ::-1]),
+                                  [cv2.IMWRITE_JPEG_QUALITY, int(self.jpeg_quality)])  # fmt: skip
             c = np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
         return dataclasses.replace(frame, color=c)
 
@@ -148,7 +152,7 @@ def pair_errors(
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--weights", default="0,1,10", help="photometric weights of the joint runs")
-    ap.add_argument("--every", type=int, default=4, help="every n-th pair")
+    ap.add_argument("--every", type=int, default=4, help="every n-th triplet")
     ap.add_argument("--frames", type=int, default=240, help="frames of each synthetic row")
     ap.add_argument("--only", default="", help="comma-separated substrings of row names")
     ap.add_argument("--shift", default="0,0", help="dx,dy: shift the colour images (pixels)")
@@ -189,9 +193,8 @@ def main() -> None:
             f"{summary[k]['median']:.2f} / {summary[k]['p90']:.2f}"
             for k in keys + [f"{k}_cycle" for k in keys]
         )
-        print(
-            f"| {row.name} | {len(errors['depth'])} | {summary['true_step']['median']:.1f} | {cells} |"
-        )
+        step = summary["true_step"]["median"]
+        print(f"| {row.name} | {len(errors['depth'])} | {step:.1f} | {cells} |")
     settings = {"weights": weights, "every": args.every, **dataclasses.asdict(alteration)}
     name = "colour-depth-pairs" + (f"-{args.tag}" if args.tag else "")
     path = write_result(name, {"machine": machine(), "settings": settings, "rows": out})
