@@ -20,9 +20,10 @@ Two errors, in mm of translation:
   ``i - 1 -> i`` composed, against ``i - 2 -> i`` aligned directly (a measurement's scatter; a
   bias common to the three cancels).
 
-Only rows whose colour is registered to depth. ``--shift``, ``--blur``, ``--noise``,
-``--vignette`` and ``--jpeg`` alter the colour images first (:class:`Alteration`): what a real
-camera's colour may have that the generator's lacks. Writes
+Only rows whose colour is registered to depth. ``--shift``, ``--blur``, ``--motion-blur``,
+``--noise``, ``--vignette``, ``--gain`` and ``--jpeg`` alter the colour images first
+(:class:`Alteration`): what a real camera's colour may have that the generator's lacks;
+``--color-dt-scale`` and ``--color-dt-add-ms`` move the colour's instant. Writes
 ``results/colour-depth-pairs[-TAG].json`` and prints a table.
 """
 
@@ -48,10 +49,13 @@ KINDS = ("room", "wall", "corridor", "hall", "desk")
 
 @dataclasses.dataclass(frozen=True)
 class Alteration:
-    """What is done to each colour image before it is aligned: a shift against the depth
-    (pixels), a blur (pixels), grey noise (grey levels, correlated over ``noise_corr_px``),
-    vignetting (brightness falls by this fraction at the corners) and a JPEG re-encoding of this
-    quality (0: none)."""
+    """What is done to each colour image before it is aligned, in this order: a shift against
+    the depth (pixels), a blur (pixels), a line blur of up to ``motion_blur_px`` whose length and
+    direction are drawn per frame, vignetting (brightness falls by this fraction at the
+    corners), grey noise (grey levels, correlated over ``noise_corr_px``), an exposure gain
+    drawn per frame (log-normal, this sigma: auto-exposure) and a JPEG re-encoding of this
+    quality (0: none). The frame's colour time offset ``color_dt_s`` becomes
+    ``color_dt_s * color_dt_scale + color_dt_add_s``: where tracking places its colour camera."""
 
     shift_px: tuple[float, float] = (0.0, 0.0)
     blur_px: float = 0.0
@@ -59,10 +63,18 @@ class Alteration:
     noise_corr_px: float = 0.0
     vignette: float = 0.0
     jpeg_quality: int = 0
+    gain: float = 0.0
+    color_dt_scale: float = 1.0
+    color_dt_add_s: float = 0.0
+    motion_blur_px: float = 0.0
 
     def apply(self, frame: Frame) -> Frame:
+        if (self.color_dt_scale, self.color_dt_add_s) != (1.0, 0.0):
+            dt = frame.color_dt_s * self.color_dt_scale + self.color_dt_add_s
+            frame = dataclasses.replace(frame, color_dt_s=dt)
         c = frame.color
-        if c is None or self == Alteration():
+        timing = {"color_dt_scale": 1.0, "color_dt_add_s": 0.0}
+        if c is None or dataclasses.replace(self, **timing) == Alteration():
             return frame
         h, w = c.shape[:2]
         img = c.astype(np.float32)
@@ -72,6 +84,8 @@ class Alteration:
                                  borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
         if self.blur_px > 0:
             img = cv2.GaussianBlur(img, (0, 0), self.blur_px)
+        if self.motion_blur_px > 0:
+            img = _motion_blur(img, self.motion_blur_px, np.random.default_rng((frame.index, 2)))
         if self.vignette > 0:
             y, x = np.mgrid[0:h, 0:w].astype(np.float32)
             r2 = ((x - w / 2) ** 2 + (y - h / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
@@ -82,12 +96,36 @@ class Alteration:
                 n = cv2.GaussianBlur(n, (0, 0), self.noise_corr_px)
                 n /= max(float(n.std()), 1e-9)
             img += self.noise * n[..., None]
+        if self.gain > 0:
+            rng = np.random.default_rng((frame.index, 1))
+            img *= np.float32(np.exp(self.gain * rng.standard_normal()))
         c = np.clip(np.rint(img), 0, 255).astype(np.uint8)
         if self.jpeg_quality > 0:
             _, buf = cv2.imencode(".jpg", np.ascontiguousarray(c[..., ::-1]),
                                   [cv2.IMWRITE_JPEG_QUALITY, int(self.jpeg_quality)])  # fmt: skip
             c = np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
         return dataclasses.replace(frame, color=c)
+
+
+def _motion_blur(img: np.ndarray, max_px: float, rng: np.random.Generator) -> np.ndarray:
+    """A line blur centred on each pixel, of a length drawn within ``max_px`` along a direction
+    drawn per frame: a camera whose motion during the exposure changes from frame to frame."""
+    length = rng.uniform(0.0, max_px)
+    if length < 0.5:
+        return img
+    angle = rng.uniform(0.0, np.pi)
+    r = int(np.ceil(length / 2)) + 1
+    kernel = np.zeros((2 * r + 1, 2 * r + 1), np.float32)
+    for s in np.linspace(-length / 2, length / 2, 4 * int(np.ceil(length)) + 1):
+        x, y = r + s * np.cos(angle), r + s * np.sin(angle)
+        x0, y0 = int(np.floor(x)), int(np.floor(y))
+        fx, fy = x - x0, y - y0
+        kernel[y0, x0] += (1 - fx) * (1 - fy)
+        kernel[y0, x0 + 1] += fx * (1 - fy)
+        kernel[y0 + 1, x0] += (1 - fx) * fy
+        kernel[y0 + 1, x0 + 1] += fx * fy
+    kernel /= kernel.sum()
+    return cv2.filter2D(img, -1, kernel, borderType=cv2.BORDER_REPLICATE)
 
 
 #: The frame pairs of a triplet (i - 2, i - 1, i) that are aligned: two steps and their sum.
@@ -162,13 +200,43 @@ def main() -> None:
     )
     ap.add_argument("--vignette", type=float, default=0.0, help="brightness loss at the corners")
     ap.add_argument("--jpeg", type=int, default=0, help="re-encode the colour as JPEG (quality)")
+    ap.add_argument("--gain", type=float, default=0.0, help="per-frame exposure gain (log sigma)")
+    ap.add_argument(
+        "--color-dt-scale",
+        type=float,
+        default=1.0,
+        help="scale each frame's colour time offset (0: colour taken at the depth's instant)",
+    )
+    ap.add_argument(
+        "--color-dt-add-ms",
+        type=float,
+        default=0.0,
+        help="add this to each frame's colour time offset (milliseconds)",
+    )
+    ap.add_argument(
+        "--motion-blur",
+        type=float,
+        default=0.0,
+        help="a line blur of up to this many pixels, its length and direction drawn per frame",
+    )
     ap.add_argument("--tag", default="", help="suffix of the result name")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     weights = [float(w) for w in args.weights.split(",")]
     dx, dy = (float(v) for v in args.shift.split(","))
     sigma, corr = (float(v) for v in args.noise.split(","))
-    alteration = Alteration((dx, dy), args.blur, sigma, corr, args.vignette, args.jpeg)
+    alteration = Alteration(
+        (dx, dy),
+        args.blur,
+        sigma,
+        corr,
+        args.vignette,
+        args.jpeg,
+        args.gain,
+        args.color_dt_scale,
+        args.color_dt_add_ms * 1e-3,
+        args.motion_blur,
+    )
     rows = real_rows() + synthetic_rows(args.frames, KINDS, (2.0,), (0,))
     if args.only:
         rows = [r for r in rows if any(s in r.name for s in args.only.split(","))]
