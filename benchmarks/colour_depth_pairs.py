@@ -22,8 +22,10 @@ Two errors, in mm of translation:
 
 Only rows whose colour is registered to depth. ``--shift``, ``--blur``, ``--motion-blur``,
 ``--noise``, ``--vignette``, ``--gain`` and ``--jpeg`` alter the colour images first
-(:class:`Alteration`): what a real camera's colour may have that the generator's lacks;
-``--color-dt-scale`` and ``--color-dt-add-ms`` move the colour's instant. Writes
+(:class:`Alteration`), and ``--gloss`` adds a fixed light's reflection (:class:`Gloss`): what
+a real camera's colour may have that the generator's lacks; ``--color-dt-scale`` and
+``--color-dt-add-ms`` move the colour's instant. ``--exact`` adds the matrix's exact-depth rows
+(clean normals for ``--gloss``). Writes
 ``results/colour-depth-pairs[-TAG].json`` and prints a table.
 """
 
@@ -36,12 +38,14 @@ import logging
 import cv2
 import numpy as np
 from common import machine, write_result
-from matrix import real_rows, synthetic_rows
+from matrix import EXACT, real_rows, synthetic_rows
 
 import slam
 from slam.data.base import Frame
 from slam.frontend.motion import colour_motion
+from slam.frontend.pointcloud import normal_map
 from slam.frontend.tracker import Tracker
+from slam.frontend.weighted_icp import vertex_map
 from slam.geometry import inv_T, translation_norm
 
 KINDS = ("room", "wall", "corridor", "hall", "desk")
@@ -128,6 +132,37 @@ def _motion_blur(img: np.ndarray, max_px: float, rng: np.random.Generator) -> np
     return cv2.filter2D(img, -1, kernel, borderType=cv2.BORDER_REPLICATE)
 
 
+@dataclasses.dataclass(frozen=True)
+class Gloss:
+    """A white light at a fixed place in the world reflected by every surface (Blinn-Phong):
+    ``strength`` x 255 grey levels added where the surface mirrors the light into the camera,
+    falling as ``cos^shininess`` of the half-vector's angle away from it. Appearance that
+    changes with the viewpoint (a glossy desk, a lit painted wall), which the generator's
+    colour lacks. Surface normals from the depth smoothed over a few pixels (the surface's,
+    not the depth noise's)."""
+
+    strength: float = 0.0
+    shininess: float = 30.0
+
+    def apply(self, frame: Frame, T_world_cam: np.ndarray, light_world: np.ndarray) -> Frame:
+        if self.strength <= 0 or frame.color is None:
+            return frame
+        V = vertex_map(frame.depth_m, frame.K)
+        n = normal_map(cv2.GaussianBlur(V, (0, 0), 3.0))
+        light = (inv_T(T_world_cam) @ np.append(light_world, 1.0))[:3].astype(np.float32)
+
+        def unit(a: np.ndarray) -> np.ndarray:
+            return a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-9)
+
+        half = unit(unit(light - V) + unit(-V))
+        cos = np.clip(np.einsum("ijk,ijk->ij", n, half), 0.0, 1.0)
+        spec = self.strength * 255.0 * cos**self.shininess
+        spec[frame.depth_m <= 0] = 0.0
+        img = frame.color.astype(np.float32) + spec[..., None]
+        color = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        return dataclasses.replace(frame, color=color)
+
+
 #: The frame pairs of a triplet (i - 2, i - 1, i) that are aligned: two steps and their sum.
 PAIRS = ((0, 1), (1, 2), (0, 2))
 
@@ -148,7 +183,11 @@ def _align(prepared, frames, pair, step, weight, cfg, levels) -> np.ndarray:
 
 
 def pair_errors(
-    path, weights: list[float], every: int, alteration: Alteration = Alteration()
+    path,
+    weights: list[float],
+    every: int,
+    alteration: Alteration = Alteration(),
+    gloss: Gloss = Gloss(),
 ) -> dict[str, np.ndarray] | None:
     """Per triplet ``(i - 2, i - 1, i)``, every ``every`` frames: the true step ``i - 1 -> i``
     (mm), the error (mm) of its alignment by depth alone (``depth``) and by each weight's joint
@@ -161,6 +200,8 @@ def pair_errors(
     if gt is None or not seq.color_registered:
         return None
     poses = {round(float(t), 6): T for t, T in zip(gt.timestamps, gt.poses)}
+    # the light of --gloss: 1 m above and 1 m ahead of where the camera starts (y is down)
+    light = (gt.poses[0] @ np.array([0.0, -1.0, 1.0, 1.0]))[:3]
     tracker = Tracker(cfg.tracking, seq.has_color, seq.color_registered)
     levels = len(cfg.tracking.iterations)
     keys = ["depth"] + [f"w{w:g}" for w in weights]
@@ -172,6 +213,7 @@ def pair_errors(
         if any(t not in poses for t in stamps):
             continue
         frames = [alteration.apply(seq[k]) for k in (i - 2, i - 1, i)]
+        frames = [gloss.apply(f, poses[t], light) for f, t in zip(frames, stamps)]
         prepared = [tracker.prepare(f) for f in frames]
         for p in prepared:
             p.photometric_image(levels)
@@ -219,6 +261,12 @@ def main() -> None:
         default=0.0,
         help="a line blur of up to this many pixels, its length and direction drawn per frame",
     )
+    ap.add_argument(
+        "--gloss",
+        default="0,30",
+        help="strength,shininess: a fixed light's reflection added to the colour (0: none)",
+    )
+    ap.add_argument("--exact", action="store_true", help="also the matrix's exact-depth rows")
     ap.add_argument("--tag", default="", help="suffix of the result name")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -237,7 +285,10 @@ def main() -> None:
         args.color_dt_add_ms * 1e-3,
         args.motion_blur,
     )
-    rows = real_rows() + synthetic_rows(args.frames, KINDS, (2.0,), (0,))
+    strength, shininess = (float(v) for v in args.gloss.split(","))
+    gloss = Gloss(strength, shininess)
+    exact = EXACT if args.exact else ()
+    rows = real_rows() + synthetic_rows(args.frames, KINDS, (2.0,), (0,), exact=exact)
     if args.only:
         rows = [r for r in rows if any(s in r.name for s in args.only.split(","))]
     keys = ["depth"] + [f"w{w:g}" for w in weights]
@@ -246,7 +297,7 @@ def main() -> None:
     print("|---|---|---|" + "---|" * 2 * len(keys))
     out = {}
     for row in rows:
-        errors = pair_errors(row.path, weights, args.every, alteration)
+        errors = pair_errors(row.path, weights, args.every, alteration, gloss)
         if errors is None:
             continue
         summary = {
@@ -264,6 +315,7 @@ def main() -> None:
         step = summary["true_step"]["median"]
         print(f"| {row.name} | {len(errors['depth'])} | {step:.1f} | {cells} |")
     settings = {"weights": weights, "every": args.every, **dataclasses.asdict(alteration)}
+    settings["gloss"] = dataclasses.asdict(gloss)
     name = "colour-depth-pairs" + (f"-{args.tag}" if args.tag else "")
     path = write_result(name, {"machine": machine(), "settings": settings, "rows": out})
     print(f"written: {path}")
