@@ -20,7 +20,8 @@ Two errors, in mm of translation:
   ``i - 1 -> i`` composed, against ``i - 2 -> i`` aligned directly (a measurement's scatter; a
   bias common to the three cancels).
 
-Only rows whose colour is registered to depth. ``--shift``, ``--blur``, ``--motion-blur``,
+Only rows whose colour is registered to depth. ``--shift``, ``--radial``, ``--blur``,
+``--motion-blur``,
 ``--noise``, ``--vignette``, ``--gain`` and ``--jpeg`` alter the colour images first
 (:class:`Alteration`), and ``--gloss`` adds a fixed light's reflection (:class:`Gloss`): what
 a real camera's colour may have that the generator's lacks; ``--color-dt-scale`` and
@@ -54,7 +55,8 @@ KINDS = ("room", "wall", "corridor", "hall", "desk")
 @dataclasses.dataclass(frozen=True)
 class Alteration:
     """What is done to each colour image before it is aligned, in this order: a shift against
-    the depth (pixels), a blur (pixels), a line blur of up to ``motion_blur_px`` whose length and
+    the depth (pixels), a radial displacement against the depth (``radial_px`` at the corners,
+    growing as r^2: colour registered to depth only at the centre), a blur (pixels), a line blur of up to ``motion_blur_px`` whose length and
     direction are drawn per frame, vignetting (brightness falls by this fraction at the
     corners), grey noise (grey levels, correlated over ``noise_corr_px``), an exposure gain
     drawn per frame (log-normal, this sigma: auto-exposure) and a JPEG re-encoding of this
@@ -71,6 +73,7 @@ class Alteration:
     color_dt_scale: float = 1.0
     color_dt_add_s: float = 0.0
     motion_blur_px: float = 0.0
+    radial_px: float = 0.0
 
     def apply(self, frame: Frame) -> Frame:
         if (self.color_dt_scale, self.color_dt_add_s) != (1.0, 0.0):
@@ -86,6 +89,13 @@ class Alteration:
             A = np.float32([[1, 0, self.shift_px[0]], [0, 1, self.shift_px[1]]])
             img = cv2.warpAffine(img, A, (w, h), flags=cv2.INTER_LINEAR,
                                  borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+        if self.radial_px != 0:  # colour registered to depth only at the centre
+            y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+            dx, dy = x - w / 2, y - h / 2
+            r2 = (dx**2 + dy**2) / ((w / 2) ** 2 + (h / 2) ** 2)
+            k = np.float32(self.radial_px) * r2 / np.maximum(np.sqrt(dx**2 + dy**2), 1e-6)
+            img = cv2.remap(img, x - k * dx, y - k * dy, cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
         if self.blur_px > 0:
             img = cv2.GaussianBlur(img, (0, 0), self.blur_px)
         if self.motion_blur_px > 0:
@@ -266,6 +276,12 @@ def main() -> None:
         default="0,30",
         help="strength,shininess: a fixed light's reflection added to the colour (0: none)",
     )
+    ap.add_argument(
+        "--radial",
+        type=float,
+        default=0.0,
+        help="colour moved outwards against depth by this many pixels at the corners (r^2)",
+    )
     ap.add_argument("--exact", action="store_true", help="also the matrix's exact-depth rows")
     ap.add_argument("--tag", default="", help="suffix of the result name")
     args = ap.parse_args()
@@ -284,6 +300,7 @@ def main() -> None:
         args.color_dt_scale,
         args.color_dt_add_ms * 1e-3,
         args.motion_blur,
+        args.radial,
     )
     strength, shininess = (float(v) for v in args.gloss.split(","))
     gloss = Gloss(strength, shininess)
