@@ -21,12 +21,11 @@ Two errors, in mm of translation:
   bias common to the three cancels).
 
 Only rows whose colour is registered to depth. ``--shift``, ``--radial``, ``--blur``,
-``--motion-blur``,
-``--noise``, ``--vignette``, ``--gain`` and ``--jpeg`` alter the colour images first
-(:class:`Alteration`), and ``--gloss`` adds a fixed light's reflection (:class:`Gloss`): what
-a real camera's colour may have that the generator's lacks; ``--color-dt-scale`` and
-``--color-dt-add-ms`` move the colour's instant. ``--exact`` adds the matrix's exact-depth rows
-(clean normals for ``--gloss``). Writes
+``--motion-blur``, ``--noise``, ``--vignette``, ``--gain`` and ``--jpeg`` alter the colour
+images first (:class:`Alteration`), and ``--gloss`` adds a fixed light's reflection
+(:class:`Gloss`): what a real camera's colour may have that the generator's lacks.
+``--color-dt-scale`` and ``--color-dt-add-ms`` move the colour's instant. ``--exact`` adds the
+matrix's exact-depth rows (clean normals for ``--gloss``). Writes
 ``results/colour-depth-pairs[-TAG].json`` and prints a table.
 """
 
