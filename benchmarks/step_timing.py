@@ -13,9 +13,10 @@ read at the frame timestamps plus each shift in ``--shifts``, and each step's ro
 - **Depth's best shift** is where the motion capture's clock and the depth images' capture
   agree. The rotation error is the sharp measure: a hand-held camera's rotation changes
   direction within tens of milliseconds, its translation more slowly.
-- **Colour's best shift**, from the colour camera's stamps (``--colour-time stamped``, the
-  default: colour placed at its ``color_dt_s`` as tracking places it) or from the depth's
-  (``depth``: colour taken with the depth), is when the colour was taken.
+- **Colour's best shift** is when the colour was taken. The colour alignment measures the
+  motion between the two colour images (weight 10: colour decides), and it is compared with the
+  ground truth read at the colour images' stamps (``--colour-time stamped``, the default:
+  ``timestamp + color_dt_s``) or at the depth's (``depth``), plus the shift.
 
 The errors include the ground truth's own. A second part places both colour cameras where the
 ground truth (at depth's best shift) says they were at ``color_dt_s + --colour-add-ms`` and
