@@ -88,10 +88,10 @@ class Alteration:
             A = np.float32([[1, 0, self.shift_px[0]], [0, 1, self.shift_px[1]]])
             img = cv2.warpAffine(img, A, (w, h), flags=cv2.INTER_LINEAR,
                                  borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+        y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+        dx, dy = x - w / 2, y - h / 2
+        r2 = (dx**2 + dy**2) / ((w / 2) ** 2 + (h / 2) ** 2)  # 1 at the corners
         if self.radial_px != 0:  # colour registered to depth only at the centre
-            y, x = np.mgrid[0:h, 0:w].astype(np.float32)
-            dx, dy = x - w / 2, y - h / 2
-            r2 = (dx**2 + dy**2) / ((w / 2) ** 2 + (h / 2) ** 2)
             k = np.float32(self.radial_px) * r2 / np.maximum(np.sqrt(dx**2 + dy**2), 1e-6)
             img = cv2.remap(img, x - k * dx, y - k * dy, cv2.INTER_LINEAR,
                             borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
@@ -100,8 +100,6 @@ class Alteration:
         if self.motion_blur_px > 0:
             img = _motion_blur(img, self.motion_blur_px, np.random.default_rng((frame.index, 2)))
         if self.vignette > 0:
-            y, x = np.mgrid[0:h, 0:w].astype(np.float32)
-            r2 = ((x - w / 2) ** 2 + (y - h / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
             img *= (1.0 - self.vignette * r2)[..., None]
         if self.noise > 0:
             n = np.random.default_rng(frame.index).standard_normal((h, w)).astype(np.float32)
