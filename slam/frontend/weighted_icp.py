@@ -218,7 +218,7 @@ class Constraint:
         return self.weakest_std_m / max(self.strongest_std_m, 1e-30)
 
 
-def _metric_eigen(H: np.ndarray, depth_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def metric_eigen(H: np.ndarray, depth_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(s, vals, vecs)``: the eigen-decomposition (ascending) of the information ``H`` in
     scaled coordinates ``x / s`` where a rotation of 1 rad counts as the ``depth_m`` metres it
     moves the scene (``s = [1/L]*3 + [1]*3``), so the six directions compare in metres."""
@@ -232,7 +232,7 @@ def _metric_eigen(H: np.ndarray, depth_m: float) -> tuple[np.ndarray, np.ndarray
 def constraint(H: np.ndarray, depth_m: float) -> Constraint:
     """Eigen-analysis of the information ``H`` with rotations scaled by ``depth_m`` (a rotation
     of 1 rad moves the scene by ``depth_m`` metres), so the six directions compare in metres."""
-    _, vals, vecs = _metric_eigen(H, depth_m)
+    _, vals, vecs = metric_eigen(H, depth_m)
     vals = np.maximum(vals, 1e-30)
     d = vecs[:, 0]
     return Constraint(
@@ -253,7 +253,7 @@ def without_blind_directions(
     or a wall filling the view, and what little it says there comes from a few pixels at depth
     edges and the model's bias (a sub-millimetre bias moves the estimate by about the bias
     times the ratio), not from the noise its weights assume."""
-    s, vals, vecs = _metric_eigen(H, depth_m)
+    s, vals, vecs = metric_eigen(H, depth_m)
     strong = vals >= vals[-1] / ratio**2
     if strong.all():
         return H, b
@@ -263,15 +263,13 @@ def without_blind_directions(
     return Hs / s[:, None] / s[None, :], bs / s
 
 
-def depth_constraint(
+def depth_information(
     depth_m: np.ndarray, K: np.ndarray, depth_max_m: float, noise: DepthNoise
-) -> Constraint:
-    """How well a depth image's own geometry constrains a point-to-plane alignment, before any
-    alignment: the information ``sum w J^T J`` of its points nearer than ``depth_max_m`` (with
-    their normals; ``J = [p x n, n]``, ``w = 1 / sigma(z)^2``), as :func:`constraint` sees it
-    (rotations scaled by the points' median depth). At the correct pose the residuals' Jacobian
-    is this one, so a large ratio says which motion depth cannot see: a wall filling the view,
-    a corridor."""
+) -> tuple[np.ndarray, float] | None:
+    """``(H, median depth m)``: the point-to-plane information ``sum w J^T J`` of a depth
+    image's points nearer than ``depth_max_m`` (with their normals; ``J = [p x n, n]``, twist
+    rotation first, ``w = 1 / sigma(z)^2``) and the points' median depth; None with fewer than 6
+    points. At the correct pose an alignment's residuals have this Jacobian."""
     d = np.where((depth_m > 0) & (depth_m < depth_max_m), depth_m, np.float32(0.0))
     vertex = vertex_map(np.asarray(d, np.float32), K)
     normal = normal_map(vertex, f_px=float(K[0, 0]))
@@ -279,8 +277,20 @@ def depth_constraint(
     ok[:, 1::2] = False  # every other column: the ratio is a shape, not a sum (2x cheaper)
     p, n = vertex[ok].astype(np.float64), normal[ok].astype(np.float64)
     if len(p) < 6:
-        return Constraint(float("inf"), 0.0, np.zeros(6), 0.0)
+        return None
     J = np.concatenate([np.cross(p, n), n], axis=1)
     w = 1.0 / noise.sigma(p[:, 2]).astype(np.float64) ** 2
-    H = (J * w[:, None]).T @ J
-    return constraint(H, float(np.partition(p[:, 2], len(p) // 2)[len(p) // 2]))
+    return (J * w[:, None]).T @ J, float(np.partition(p[:, 2], len(p) // 2)[len(p) // 2])
+
+
+def depth_constraint(
+    depth_m: np.ndarray, K: np.ndarray, depth_max_m: float, noise: DepthNoise
+) -> Constraint:
+    """How well a depth image's own geometry constrains a point-to-plane alignment, before any
+    alignment: :func:`depth_information` as :func:`constraint` sees it (rotations scaled by the
+    points' median depth). At the correct pose the residuals' Jacobian is this one, so a large
+    ratio says which motion depth cannot see: a wall filling the view, a corridor."""
+    info = depth_information(depth_m, K, depth_max_m, noise)
+    if info is None:
+        return Constraint(float("inf"), 0.0, np.zeros(6), 0.0)
+    return constraint(*info)

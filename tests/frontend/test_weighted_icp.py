@@ -13,6 +13,8 @@ from slam.frontend.weighted_icp import (
     SourcePoints,
     constraint,
     depth_constraint,
+    depth_information,
+    metric_eigen,
     weighted_point_to_plane,
     without_blind_directions,
 )
@@ -105,6 +107,21 @@ def test_a_depth_image_says_how_blind_its_geometry_is_before_any_alignment():
     assert wall.ratio > 1e3 and corner.ratio < 15
     cut = depth_constraint(_render(CORNER, np.eye(4)), K, 0.5, noise)  # nothing within 0.5 m
     assert cut.ratio == float("inf")
+    assert depth_information(_render(CORNER, np.eye(4)), K, 0.5, noise) is None
+
+
+def test_a_wall_s_information_is_strong_across_it_and_nil_along_it():
+    # the information behind the ratio, in metric coordinates: a wall facing the camera pins
+    # the motion towards it (and the two tilts), and says nothing of the slides along it nor
+    # the turn about its normal; its median depth is the wall's distance
+    H, median_z = depth_information(_render(CORNER[:1], np.eye(4)), K, 4.0, DepthNoise())
+    assert median_z == pytest.approx(3.0, rel=0.05)  # CORNER[0]: the plane z = 3
+    s, vals, vecs = metric_eigen(H, median_z)
+    assert np.allclose(s, [1 / median_z] * 3 + [1.0] * 3)
+    assert vals[-1] / max(vals[2], 1e-30) > 1e6  # three directions nil
+    strongest = vecs[:, -3:]  # spans the push towards the wall (t_z) and the tilts (w_x, w_y)
+    for axis in (0, 1, 5):
+        assert np.linalg.norm(strongest[axis]) > 0.99
 
 
 @settings(max_examples=30, deadline=None)
