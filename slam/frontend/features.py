@@ -24,13 +24,13 @@ class OrbExtractor:
         keypoints, desc = self.orb.detectAndCompute(grey, None)
         if desc is None or not keypoints:
             return FeatureSet.empty()
-        px = np.array([kp.pt for kp in keypoints], dtype=np.float64)
         octave = np.array([kp.octave for kp in keypoints], dtype=np.int64)
+        px = keypoint_pixels(np.array([kp.pt for kp in keypoints]), octave, grey.shape)
         # depth at the keypoint: nearest pixel of the depth image (which may differ in size)
         sy = depth_m.shape[0] / grey.shape[0]
         sx = depth_m.shape[1] / grey.shape[1]
-        ui = np.clip(np.round(px[:, 0] * sx).astype(int), 0, depth_m.shape[1] - 1)
-        vi = np.clip(np.round(px[:, 1] * sy).astype(int), 0, depth_m.shape[0] - 1)
+        ui = np.clip(np.round((px[:, 0] + 0.5) * sx - 0.5).astype(int), 0, depth_m.shape[1] - 1)
+        vi = np.clip(np.round((px[:, 1] + 0.5) * sy - 0.5).astype(int), 0, depth_m.shape[0] - 1)
         z = depth_m[vi, ui].astype(np.float64)
         ok = (z > self.depth_min_m) & (z < self.depth_max_m)
         pts = _lift(ui[ok], vi[ok], z[ok], K)
@@ -58,6 +58,22 @@ class OrbExtractor:
         pts = moved.points_cam.copy()
         pts[ok] = _lift(ui[ok], vi[ok], z[ok], K)
         return FeatureSet(moved.pixels, moved.descriptors, pts, moved.octave)
+
+
+def keypoint_pixels(pt: np.ndarray, octave: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Full-resolution pixel coordinates (N, 2) of ORB keypoints found at pyramid levels
+    ``octave``, from OpenCV's ``KeyPoint.pt``. OpenCV scales a level's pixel by the level's
+    scale alone (``pt = x_level * s``), but its pyramid is resized with the pixel-centre
+    convention, under which that pixel lies at ``(x_level + 0.5) * W / W_level - 0.5``: its
+    keypoints sit ``(s - 1) / 2`` pixels too far up and left, 0.1 px at level 1 and 1.3 px at
+    level 7, the same way in every image. (An image and its mirror image find the same
+    keypoints only with the centre convention; tests/frontend/test_features.py.)"""
+    h, w = shape[:2]
+    s = SCALE_FACTOR ** octave.astype(np.float64)
+    w_level, h_level = np.round(w / s), np.round(h / s)  # OpenCV's level sizes (cvRound)
+    x = (pt[:, 0] / s + 0.5) * (w / w_level) - 0.5
+    y = (pt[:, 1] / s + 0.5) * (h / h_level) - 0.5
+    return np.stack([x, y], axis=-1)
 
 
 def _lift(ui: np.ndarray, vi: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
