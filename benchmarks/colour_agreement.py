@@ -35,14 +35,12 @@ import time
 import cv2
 import numpy as np
 import open3d as o3d
-from colour_depth_pairs import _align
+from colour_depth_pairs import _align, registered_sequence
 from common import machine, sequence_path, write_result
 from matrix import KINDS, UNSYNCED, Row, real_rows, synthetic_rows
 
-import slam
 from slam.camera import scale_intrinsics
 from slam.frontend.frame import depth_noise
-from slam.frontend.tracker import Tracker
 from slam.frontend.weighted_icp import depth_information, metric_eigen
 from slam.geometry import inv_T, log_se3, translation_norm
 
@@ -89,13 +87,10 @@ def agreement(path, every: int, strong_ratio: float, hybrid: bool) -> dict[str, 
     """Per frame (every ``every``-th): the constraint ratio, colour's distance from depth along
     the strong and weak directions (mm), each alignment's error (mm) against the true step and
     its time (ms). None when colour is not registered to depth."""
-    cfg = slam.load_config(None)
-    seq = slam.open_sequence(path, cfg.dataset.layout, cfg.dataset.calibration)
-    gt = seq.ground_truth
-    if gt is None or not seq.color_registered:
+    opened = registered_sequence(path)
+    if opened is None:
         return None
-    poses = {round(float(t), 6): T for t, T in zip(gt.timestamps, gt.poses)}
-    tracker = Tracker(cfg.tracking, seq.has_color, seq.color_registered)
+    cfg, seq, poses, tracker = opened
     levels = len(cfg.tracking.iterations)
     names = ALIGNMENTS + (("o3d_hybrid",) if hybrid else ())
     out: dict[str, list[float]] = {"ratio": [], "strong": [], "weak": []}

@@ -189,6 +189,19 @@ def _align(prepared, frames, pair, step, weight, cfg, levels) -> np.ndarray:
     return pb.joint_to(target, step, cfg.tracking, weight, pa.T_depth_colour).T_target_source
 
 
+def registered_sequence(path):
+    """``(cfg, seq, poses, tracker)``: the default config, the sequence, its ground-truth poses
+    by timestamp (rounded to the microsecond) and tracking's frame preparation; None when the
+    sequence has no ground truth or its colour is not registered to depth."""
+    cfg = slam.load_config(None)
+    seq = slam.open_sequence(path, cfg.dataset.layout, cfg.dataset.calibration)
+    gt = seq.ground_truth
+    if gt is None or not seq.color_registered:
+        return None
+    poses = {round(float(t), 6): T for t, T in zip(gt.timestamps, gt.poses)}
+    return cfg, seq, poses, Tracker(cfg.tracking, seq.has_color, seq.color_registered)
+
+
 def pair_errors(
     path,
     weights: list[float],
@@ -201,15 +214,12 @@ def pair_errors(
     alignment (``w<weight>``), and each one's cycle error (``<key>_cycle``, mm: the two steps
     against the pair ``i - 2 -> i`` aligned directly; no ground truth in it). None when colour
     is not registered to depth."""
-    cfg = slam.load_config(None)
-    seq = slam.open_sequence(path, cfg.dataset.layout, cfg.dataset.calibration)
-    gt = seq.ground_truth
-    if gt is None or not seq.color_registered:
+    opened = registered_sequence(path)
+    if opened is None:
         return None
-    poses = {round(float(t), 6): T for t, T in zip(gt.timestamps, gt.poses)}
+    cfg, seq, poses, tracker = opened
     # the light of --gloss: 1 m above and 1 m ahead of where the camera starts (y is down)
-    light = (gt.poses[0] @ np.array([0.0, -1.0, 1.0, 1.0]))[:3]
-    tracker = Tracker(cfg.tracking, seq.has_color, seq.color_registered)
+    light = (seq.ground_truth.poses[0] @ np.array([0.0, -1.0, 1.0, 1.0]))[:3]
     levels = len(cfg.tracking.iterations)
     keys = ["depth"] + [f"w{w:g}" for w in weights]
     out: dict[str, list[float]] = {"true_step": []}
