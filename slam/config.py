@@ -303,12 +303,20 @@ class BAConfig:
     # track (0: all): long tracks make the reduced camera system dense (time, memory)
     max_observations_per_landmark: int = 20
     # the pose graph's depth-registration edges (odometry, loops) stay in the problem, their
-    # information scaled by this factor (0: pure BA, keyframes held by landmarks only). Where
-    # tracks are short (a keyframe's landmarks seen by 2-3 keyframes) sparse features alone
-    # drift more than dense ICP odometry; keyframe ATE (mm) pose graph / w=10 / 30 / 100:
-    # tum-fr1-xyz 17.2 / 9.4 / 9.2 / 10.4, demo 2.5 / 4.4 / 3.6 / 2.2, demo-drift
-    # 9.5 / 5.9 / 5.3 / 5.0, 7scenes-1000 49.6 / 32.3 / 34.0 / 36.8
+    # information scaled by a weight that starts at this factor (0: pure BA, keyframes held by
+    # landmarks only). Where tracks are short (a keyframe's landmarks seen by 2-3 keyframes)
+    # sparse features alone drift more than dense ICP odometry. How accurate the edges are
+    # against the landmarks differs by orders of magnitude between sequences (at the true
+    # poses, exact synthetic depth: 0.005 of the variance assumed at 100, tum-fr1-xyz 46x),
+    # so the final adjustment estimates the weight from its own residuals, starting here, in
+    # up to edge_weight_rounds rounds (variance component estimation,
+    # slam.backend.variance_components; 0: the weight stays fixed). Without a loop among the
+    # edges it is only ever raised (the estimate's bias lowers it where edges are checked by
+    # landmarks alone). Mid-run adjustments, on part of the data while loops are still being
+    # decided, keep this weight (estimating it there too: tum-fr1-xyz final 0.0089 -> 0.0093
+    # m; docs/benchmarks.md, session 26)
     pose_graph_weight: float = 100.0
+    edge_weight_rounds: int = 3
     # an adjustment with fewer inlier observations than this per keyframe is not used (the
     # pose graph stands): too few landmarks to beat the depth odometry (tum-fr3-cabinet-kf58,
     # 46 per keyframe: 57 -> 66 mm; the sequences above: 130-215)

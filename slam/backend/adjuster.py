@@ -132,11 +132,14 @@ class BundleAdjuster:
     ) -> BAResult:
         """Bundle adjustment from ``poses`` (``T_world_kf``, e.g. the pose graph's nodes) over
         the keyframes ``kf_ids`` (default all), ``fixed`` ones held; ``edges`` (the pose
-        graph's) join with weight ``ba.pose_graph_weight``. Outlier observations are removed
-        from the tracks. ``result.poses`` has every keyframe of ``poses``; when BA cannot run
+        graph's) join with weight ``ba.pose_graph_weight``; the final adjustment (``reason``
+        ``finish``) then estimates that weight from its residuals in up to
+        ``ba.edge_weight_rounds`` rounds (:mod:`slam.backend.variance_components`). Outlier
+        observations are removed from the tracks. ``result.poses`` has every keyframe of ``poses``; when BA cannot run
         (see :attr:`skip_reason`, or no landmark seen twice) ``result.skipped`` says why and
         ``result.poses`` is empty."""
-        return self._record(self._run(*self._snapshot(poses, edges, kf_ids), fixed), reason)
+        rounds = self.cfg.edge_weight_rounds if reason == "finish" else 0
+        return self._record(self._run(*self._snapshot(poses, edges, kf_ids), fixed, rounds), reason)
 
     def _snapshot(
         self,
@@ -157,6 +160,7 @@ class BundleAdjuster:
         poses: dict[int, np.ndarray],
         edges: list[Edge],
         fixed: Iterable[int] | None,
+        edge_weight_rounds: int = 0,
     ) -> BAResult:
         if problem is None:
             return BAResult(skipped=self.skip_reason)
@@ -169,6 +173,7 @@ class BundleAdjuster:
             edges=edges,
             edge_weight=cfg.pose_graph_weight,
             loop_kernel_width=self.loop_kernel_width,
+            edge_weight_rounds=edge_weight_rounds,
         )
 
     def _record(self, result: BAResult, reason: str = "global") -> BAResult:

@@ -161,6 +161,9 @@ class BAResult:
     error_after: float = 0.0
     max_pose_change_m: float = 0.0
     max_pose_change_deg: float = 0.0
+    # the pose graph edges' weight: the last estimate when it was estimated, else the one
+    # given (0: no edges)
+    edge_weight: float = 0.0
     skipped: str | None = None
 
     def summary(self) -> dict[str, Any]:
@@ -176,6 +179,7 @@ class BAResult:
             "ms": round(self.ms, 1),
             "max_pose_change_m": round(self.max_pose_change_m, 5),
             "max_pose_change_deg": round(self.max_pose_change_deg, 4),
+            "edge_weight": round(self.edge_weight, 3),
         }
         if self.skipped:
             out["skipped"] = self.skipped
