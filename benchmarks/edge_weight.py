@@ -9,8 +9,9 @@ Each sequence is run once (default config; the final adjustment left out), then:
   observations lifted by depth under the true poses): 1 means the noise each is given is its
   real one. Keyframes take the ground-truth pose nearest their timestamp (within 20 ms).
 - **the final adjustment at fixed weights** (``--weights``) and with the weight estimated from
-  its residuals (``ba.edge_weight_rounds``, :mod:`slam.backend.variance_components`): keyframe
-  ATE (mm, SE(3)-aligned, keyframes only) and the weight it settled on.
+  its residuals in up to ``--rounds`` rounds (``ba.edge_weight_rounds``, opt-in;
+  :mod:`slam.backend.variance_components`): keyframe ATE (mm, SE(3)-aligned, keyframes only)
+  and the weight it settled on.
 
 Synthetic rows: the folders ``benchmarks/matrix.py`` generates under
 ``~/.cache/rgbd-slam/matrix``. Writes ``results/edge-weight[-TAG].json``.
@@ -89,7 +90,7 @@ def _landmarks_chi2(system, truth, cfg) -> dict[str, float]:
     }
 
 
-def study(name: str, weights: list[float]) -> dict:
+def study(name: str, weights: list[float], rounds: int) -> dict:
     path = sequence_path(name)
     cfg = slam.load_config(None)
     cfg.ba.at_finish = False  # the final adjustments are made here
@@ -111,17 +112,17 @@ def study(name: str, weights: list[float]) -> dict:
         **_landmarks_chi2(system, truth, system.ba.effective_config),
     }
     landmarks = system.ba.landmarks
-    for label, cfg_w, rounds in [(f"w{w:g}", w, 0) for w in weights] + [
-        ("estimated", base.pose_graph_weight, base.edge_weight_rounds)
+    for label, cfg_w, n_rounds in [(f"w{w:g}", w, 0) for w in weights] + [
+        ("estimated", base.pose_graph_weight, rounds)
     ]:
         system.ba.cfg = dataclasses.replace(
-            base, pose_graph_weight=cfg_w, edge_weight_rounds=rounds
+            base, pose_graph_weight=cfg_w, edge_weight_rounds=n_rounds
         )
         system.ba.landmarks = copy.deepcopy(landmarks)  # outliers are removed from the tracks
         res = system.ba.optimise(nodes, system.closer.graph.edges, reason="finish")
         poses = {k: res.poses.get(k, nodes[k]) for k in nodes}
         row[f"{label}_mm"] = round(_aligned_rmse_mm(poses, truth), 3)
-        if rounds:
+        if n_rounds:
             row["estimated_weight"] = round(res.edge_weight, 3)
         if res.skipped:
             row[f"{label}_skipped"] = res.skipped
@@ -132,13 +133,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sequences", nargs="+", help="names (run_slam.py's) or folders")
     parser.add_argument("--weights", default="1,10,100,1000,10000")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds of the estimate")
     parser.add_argument("--tag", default="")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
     weights = [float(w) for w in args.weights.split(",")]
     rows = {}
     for name in args.sequences:
-        rows[name.rstrip("/").split("/")[-1]] = row = study(name, weights)
+        rows[name.rstrip("/").split("/")[-1]] = row = study(name, weights, args.rounds)
         print(name.rstrip("/").split("/")[-1], row, flush=True)
     out = write_result(f"edge-weight{args.tag}", {"machine": machine(), "rows": rows})
     print(f"wrote {out}")

@@ -308,15 +308,16 @@ class BAConfig:
     # sparse features alone drift more than dense ICP odometry. How accurate the edges are
     # against the landmarks differs by orders of magnitude between sequences (at the true
     # poses, exact synthetic depth: 0.005 of the variance assumed at 100, tum-fr1-xyz 46x),
-    # so the final adjustment estimates the weight from its own residuals, starting here, in
-    # up to edge_weight_rounds rounds (variance component estimation,
+    # so the final adjustment can estimate the weight from its own residuals, starting here,
+    # in up to edge_weight_rounds rounds (variance component estimation,
     # slam.backend.variance_components; 0: the weight stays fixed). Without a loop among the
     # edges it is only ever raised (the estimate's bias lowers it where edges are checked by
-    # landmarks alone). Mid-run adjustments, on part of the data while loops are still being
-    # decided, keep this weight (estimating it there too: tum-fr1-xyz final 0.0089 -> 0.0093
-    # m; docs/benchmarks.md, session 26)
+    # landmarks alone); mid-run adjustments keep this weight. Opt-in (3): on the scene matrix
+    # 13 rows gained (room-x2-s0 0.0021 -> 0.0013 m, the exact corridors, 7-Scenes 0.0383 ->
+    # 0.0371), but tum-fr1-xyz-x3 (0.0082 -> 0.0086) and corridor-x2-s0 (0.0036 -> 0.0040)
+    # lost beyond their spread (docs/benchmarks.md, session 26)
     pose_graph_weight: float = 100.0
-    edge_weight_rounds: int = 3
+    edge_weight_rounds: int = 0
     # an adjustment with fewer inlier observations than this per keyframe is not used (the
     # pose graph stands): too few landmarks to beat the depth odometry (tum-fr3-cabinet-kf58,
     # 46 per keyframe: 57 -> 66 mm; the sequences above: 130-215)
