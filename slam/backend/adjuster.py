@@ -132,12 +132,12 @@ class BundleAdjuster:
     ) -> BAResult:
         """Bundle adjustment from ``poses`` (``T_world_kf``, e.g. the pose graph's nodes) over
         the keyframes ``kf_ids`` (default all), ``fixed`` ones held; ``edges`` (the pose
-        graph's) join with weight ``ba.pose_graph_weight``; the final adjustment (``reason``
-        ``finish``) then estimates that weight from its residuals in up to
-        ``ba.edge_weight_rounds`` rounds (:mod:`slam.backend.variance_components`). Outlier
-        observations are removed from the tracks. ``result.poses`` has every keyframe of ``poses``; when BA cannot run
-        (see :attr:`skip_reason`, or no landmark seen twice) ``result.skipped`` says why and
-        ``result.poses`` is empty."""
+        graph's) join with weight ``ba.pose_graph_weight``; with ``ba.edge_weight_rounds`` > 0
+        (opt-in) the final adjustment (``reason`` ``finish``) then estimates that weight from
+        its residuals (:mod:`slam.backend.variance_components`). Outlier observations are
+        removed from the tracks. ``result.poses`` has every keyframe of ``poses``; when BA
+        cannot run (see :attr:`skip_reason`, or no landmark seen twice) ``result.skipped`` says
+        why and ``result.poses`` is empty."""
         rounds = self.cfg.edge_weight_rounds if reason == "finish" else 0
         return self._record(self._run(*self._snapshot(poses, edges, kf_ids), fixed, rounds), reason)
 

@@ -325,12 +325,12 @@ class _Solver:
 
     def settle_edge_weight(
         self, prob: BAProblem, poses: dict[int, np.ndarray], pts: np.ndarray, rounds: int
-    ) -> tuple[dict[int, np.ndarray], np.ndarray, int, float]:
+    ) -> tuple[dict[int, np.ndarray], np.ndarray, int, float | None]:
         """Up to ``rounds`` times: estimate the edges' weight from the last solution's
         residuals (:func:`variance_components.estimate`, :func:`variance_components.next_weight`)
         and, when it moved by more than :data:`WEIGHT_TOLERANCE`, solve again from there.
-        Returns the poses, points, iterations and error of the last solve."""
-        iters, err = 0, float("nan")
+        Returns the poses, points, iterations and error of the last solve (None: none ran)."""
+        iters, err = 0, None
         start = self.edge_weight
         cycles = variance_components.edge_cycles([(e.i, e.j) for e in self.edges])
         for _ in range(rounds):
@@ -406,7 +406,7 @@ def bundle_adjust(
             prob, new_poses, pts, edge_weight_rounds
         )
         iters += it3
-        err1 = err1 if it3 == 0 else err3
+        err1 = err1 if err3 is None else err3
     reproj1, _ = residuals(prob, new_poses, pts, sigma, depth_sigmas(prob, cfg))
     changes = [inv_T(np.asarray(poses[k])) @ new_poses[k] for k in new_poses]
     result = BAResult(

@@ -131,9 +131,9 @@ def estimate(
         else:
             landmark_chi2 += float(b @ b)
             n_landmark += len(b)
-    n_params = sum(6 if _is_pose(k, pose_chr) else 3 for k in values.keys())
     if not edges or n_landmark == 0:
         return None
+    n_params = sum(6 if _is_pose(k, pose_chr) else 3 for k in values.keys())
     try:
         joint = gtsam.Marginals(graph, values).jointMarginalCovariance(gtsam.KeyVector(pose_keys))
     except RuntimeError as exc:  # an indeterminate system: no covariance to read
