@@ -263,8 +263,24 @@ def view(
 def synth(
     out: Annotated[Path, typer.Argument(help="Folder to write the TUM-layout sequence into.")],
     frames: Annotated[int, typer.Option("--frames", help="Number of frames.")] = 300,
+    scene: Annotated[
+        str,
+        typer.Option(
+            "--scene",
+            help="Scene kind: room (the furnished room of the demo), or a kind that stresses "
+            "tracking: wall (a textured wall filling the view), corridor, hall (walls 4-8 m "
+            "away), desk (objects 0.5-1 m away).",
+        ),
+    ] = "room",
+    speed: Annotated[
+        float,
+        typer.Option("--speed", help="Multiplies every rate of the camera path (2: fast pans)."),
+    ] = 1.0,
     loop: Annotated[
-        bool, typer.Option("--loop/--no-loop", help="Closed loop that revisits its start.")
+        bool,
+        typer.Option(
+            "--loop/--no-loop", help="Closed loop that revisits its start (the room only)."
+        ),
     ] = True,
     seed: Annotated[int, typer.Option("--seed", help="Random seed (scene and noise).")] = 0,
     alias: Annotated[
@@ -297,6 +313,8 @@ def synth(
     setup_logging()
     cfg = SynthConfig(
         frames=frames,
+        scene=scene,
+        speed=speed,
         loop=loop,
         seed=seed,
         alias=alias,

@@ -73,6 +73,23 @@ def test_synth_writes_a_sequence(tmp_path):
     assert (seq / "calibration.yaml").is_file() and (seq / "groundtruth.txt").is_file()
 
 
+def test_synth_renders_the_scene_kinds_at_a_speed(tmp_path):
+    from slam.trajectory import read_tum
+
+    steps = {}
+    for speed in ("1", "2"):
+        seq = tmp_path / f"corridor-{speed}"
+        args = ["synth", str(seq), "--frames", "3", "--scene", "corridor", "--speed", speed]
+        res = runner.invoke(app, args)
+        assert res.exit_code == 0, res.output
+        P = read_tum(seq / "groundtruth.txt").poses
+        steps[speed] = P[1][0, 3] - P[0][0, 3]  # along the corridor
+    # the corridor walked at twice the rate: twice the first step along it
+    np.testing.assert_allclose(steps["2"], 2 * steps["1"], rtol=0.05)
+    res = runner.invoke(app, ["synth", str(tmp_path / "x"), "--scene", "garden"])
+    assert res.exit_code != 0 and "scene" in res.output
+
+
 def test_synth_takes_colour_off_the_depths_instant(tmp_path):
     seq = tmp_path / "seq"
     res = runner.invoke(app, ["synth", str(seq), "--frames", "3", "--color-offset-ms", "10"])
