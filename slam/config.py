@@ -128,6 +128,15 @@ class TrackingConfig:
     # weak direction by the model's own sub-millimetre bias times about the ratio (wall rows:
     # 11 mm a frame at ratios 22-27; benchmarks/self_render_bias.py)
     photometric_ratio: float = 20.0
+    # every tracked frame's pose (where colour is registered) is refined against the previous
+    # frame's image: depth's estimate a prior with its point-to-plane information, colour's
+    # photometric cost at this weight times what colour has earned on the recording (its
+    # disagreement with depth where depth is surest, over depth's own: 1 on synthetic
+    # sequences, ~1/400 on tum-fr1-xyz; slam.frontend.colour_agreement), in
+    # colour_step_iterations Gauss-Newton steps. Where depth is weak (a wall filling the view,
+    # a corridor) colour holds the frame. 0 = off
+    colour_step_weight: float = 0.0
+    colour_step_iterations: int = 3
     # the colour a frame is aligned to against the model: "keyframe", the last keyframes'
     # images, each warped into the model's view by the model's depth and averaged, or "model",
     # the TSDF's own ray-cast colour. A TSDF's colour is smeared (aligned from the true pose to

@@ -68,6 +68,10 @@ class Attempt:
     # ICP iterations per level of this attempt's alignments (None: tracking.iterations; a
     # large or unknown motion: tracking.large_motion_iterations)
     iterations: list[int] | None = None
+    # the last frame-to-frame estimate of T_prev_cur by depth alone that was accepted
+    f2f: np.ndarray | None = None
+    # the estimate before tracking.colour_step_weight moved it (depth against the model)
+    T_world_depth: np.ndarray | None = None
 
     def keep(self, T_world_cam: np.ndarray, icp: IcpResult, overlap: float) -> None:
         self.T_world_cam, self.icp, self.overlap = T_world_cam, icp, overlap
@@ -206,6 +210,8 @@ def align_from(
             translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source) <= cfg.max_step_translation_m
         ):
             T_prev_cur = f2f.T_target_source
+            if joint is None or prev is None:  # depth alone: what depth says of the step
+                att.f2f = T_prev_cur
             trusted = True
     T_world_guess = att.T_world_prev @ T_prev_cur
     for T_done in att.tried:

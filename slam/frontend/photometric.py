@@ -38,6 +38,11 @@ from slam.frontend.weighted_icp import vertex_map, without_blind_directions
 from slam.geometry import exp_se3, inv_T
 
 _MAD = 1.4826
+# floors of the robust scales: depth's in metres, colour's in grey levels (of 1)
+_MIN_GEO_SCALE_M = 5e-4
+_MIN_PHO_SCALE = 2.0 / 255.0
+# a Gauss-Newton step moving the scene by less than this has converged (metres)
+_CONVERGED_M = 1e-6
 
 
 def grey(color: np.ndarray, factor: int = 1) -> np.ndarray:
@@ -318,19 +323,24 @@ def _project(
     return Q, fx * Q[:, 0] * inv_z + cx, fy * Q[:, 1] * inv_z + cy, inv_z
 
 
-def _joint_equations(
+_NormalEquations = tuple[np.ndarray, np.ndarray]  # (H, b) of one term
+
+
+def _term_equations(
     src: _SourceLevel,
     tgt: _TargetLevel,
     K: np.ndarray,
     T: np.ndarray,
     terms: _Terms,
     T_colour: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """One Gauss-Newton iteration's normal equations ``(H, b)`` of :func:`joint_align` at pose
-    ``T`` (``T_target_source``) and the geometric residuals of its correspondences; None when
-    fewer than 6 source points correspond. ``T_colour``: the pose of the source's colour camera
-    in the target's colour camera, when the colour images were not taken at their depth
-    images' instants (None: ``T``)."""
+) -> tuple[_NormalEquations, _NormalEquations | None, np.ndarray, np.ndarray] | None:
+    """The two terms of :func:`joint_align` at pose ``T`` (``T_target_source``), apart:
+    ``((H_geo, b_geo), (H_pho, b_pho) or None, geometric residuals, depths of the geometric
+    correspondences)``; None when fewer than 6 source points correspond. The
+    photometric term is None when its weight is 0, either side has no intensity, or fewer than
+    6 points are visible. ``T_colour``: the pose of the source's colour camera in the target's
+    colour camera, when the colour images were not taken at their depth images' instants
+    (None: ``T``)."""
     fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
     h, w = tgt.shape
     gate = terms.gate
@@ -353,7 +363,8 @@ def _joint_equations(
     rg = r_g[geo]
     s_g = _robust_scale(rg, terms.min_geo_scale_m)
     wg = (_huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
-    H, b = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
+    geometric = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
+    photometric = None
     if terms.photometric_weight > 0 and src.intensity is not None and tgt.photo is not None:
         # photometric term, on source points the target surface does not hide
         vis = np.flatnonzero(np.abs(zt - Qi[:, 2]) < gate)
@@ -362,19 +373,134 @@ def _joint_equations(
             Qp, up, vp, inv_zp = Qi[vis], uf[pi], vf[pi], inv_z[pi]
             if T_colour is not None:  # the colour images were taken from other poses
                 Qp, up, vp, inv_zp = _project(src.points[pi], T_colour, fx, fy, cx, cy)
-            Hp, bp = _photometric_equations(
+            photometric = _photometric_equations(
                 src.intensity[pi], tgt.photo, Qp, up, vp, inv_zp, fx, fy,
                 terms.photometric_weight, terms.min_pho_scale,
             )  # fmt: skip
-            if terms.degenerate_ratio > 0:  # where depth is blind, colour decides alone
-                median_z = float(np.median(Qi[geo, 2]))
-                H, b = without_blind_directions(H, b, median_z, terms.degenerate_ratio)
-            H = H + Hp
-            b = b + bp
+    return geometric, photometric, rg, Qi[geo, 2]
+
+
+def _joint_equations(
+    src: _SourceLevel,
+    tgt: _TargetLevel,
+    K: np.ndarray,
+    T: np.ndarray,
+    terms: _Terms,
+    T_colour: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """One Gauss-Newton iteration's normal equations ``(H, b)`` of :func:`joint_align` at pose
+    ``T`` (``T_target_source``) and the geometric residuals of its correspondences; None when
+    fewer than 6 source points correspond (``T_colour``: see :func:`_term_equations`)."""
+    parts = _term_equations(src, tgt, K, T, terms, T_colour)
+    if parts is None:
+        return None
+    (H, b), photometric, rg, z_geo = parts
+    if photometric is not None:
+        if terms.degenerate_ratio > 0:  # where depth is blind, colour decides alone
+            H, b = without_blind_directions(H, b, float(np.median(z_geo)), terms.degenerate_ratio)
+        H = H + photometric[0]
+        b = b + photometric[1]
     # a whisper of damping: directions nothing constrains (sliding along a bare wall) stay put
     # instead of making the system singular
     H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
     return H, b, rg
+
+
+@dataclass
+class ColourEquations:
+    """The two terms of :func:`joint_align` at one pose of a frame against the previous one,
+    for :func:`colour_refine`: depth's information ``H_geo`` (point-to-plane, at its robust
+    scale), colour's normal equations ``(H_pho, b_pho)`` at photometric weight 1, and the
+    median depth of the correspondences (to compare rotations with translations)."""
+
+    T_target_source: np.ndarray
+    H_geo: np.ndarray
+    H_pho: np.ndarray
+    b_pho: np.ndarray
+    depth_m: float
+
+    def colour_alone(self) -> np.ndarray:
+        """The twist of colour's own Gauss-Newton step from this pose (update
+        ``exp(twist) @ T_target_source``): where colour alone would put the frame."""
+        H = self.H_pho.copy()
+        H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
+        return -np.linalg.solve(H, self.b_pho)
+
+
+def colour_equations(
+    source: RgbdImage,
+    target: RgbdImage,
+    T_target_source: np.ndarray,
+    max_correspondence_m: float = 0.07,
+    huber_delta_m: float = 0.05,
+    level: int = 0,
+    colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    step: int = 1,
+) -> ColourEquations | None:
+    """:class:`ColourEquations` of ``source`` against ``target`` at ``T_target_source``; None
+    when either has no intensity or the views do not correspond (fewer than 6 points).
+    ``colour_poses``: as in :func:`joint_align`; ``step``: every step-th source pixel."""
+    if source.intensity is None or target.intensity is None:
+        return None
+    T = np.asarray(T_target_source, float)
+    C_src, C_tgt = colour_poses
+    T_colour = None
+    if C_src is not None or C_tgt is not None:
+        T_colour = T if C_src is None else T @ C_src
+        T_colour = T_colour if C_tgt is None else inv_T(C_tgt) @ T_colour
+    terms = _Terms(
+        np.float32(max_correspondence_m),
+        huber_delta_m,
+        _MIN_GEO_SCALE_M,
+        1.0,
+        _MIN_PHO_SCALE,
+        0.0,
+    )
+    parts = _term_equations(
+        source.source(level, step), target.target(level), target.K[level], T, terms, T_colour
+    )
+    if parts is None or parts[1] is None:
+        return None
+    (H_geo, _), (H_pho, b_pho), _, z = parts
+    return ColourEquations(T, H_geo, H_pho, b_pho, float(np.median(z)))
+
+
+def colour_refine(
+    source: RgbdImage,
+    target: RgbdImage,
+    first: ColourEquations,
+    photometric_weight: float,
+    iterations: int,
+    max_correspondence_m: float = 0.07,
+    huber_delta_m: float = 0.05,
+    level: int = 0,
+    colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    step: int = 1,
+) -> np.ndarray:
+    """``T_target_source`` refined from ``first.T_target_source``, a pose whose depth alignment
+    is trusted (depth's optimum against the model), by Gauss-Newton on
+    ``1/2 x^T H_geo x + photometric_weight * E_pho``: depth as a Gaussian prior at its optimum,
+    with the information its point-to-plane term has there, and colour's cost. Where depth
+    constrains the pose its information holds the frame; where depth is weak (along a wall
+    filling the view, a corridor) colour moves it."""
+    T = first.T_target_source
+    eq: ColourEquations | None = first
+    moved = np.zeros(6)  # the twist from the depth optimum, summed over the steps
+    for k in range(iterations if photometric_weight > 0 else 0):
+        if k > 0:
+            eq = colour_equations(
+                source, target, T, max_correspondence_m, huber_delta_m, level, colour_poses, step
+            )
+            if eq is None:
+                break
+        H = first.H_geo + photometric_weight * eq.H_pho
+        H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
+        dx = -np.linalg.solve(H, first.H_geo @ moved + photometric_weight * eq.b_pho)
+        moved += dx
+        T = exp_se3(dx) @ T
+        if np.linalg.norm(dx[3:]) + first.depth_m * np.linalg.norm(dx[:3]) < _CONVERGED_M:
+            break  # converged: another step would move the frame by less than a micrometre
+    return T
 
 
 def joint_align(
@@ -386,8 +512,8 @@ def joint_align(
     huber_delta_m: float = 0.05,
     coarse_factor: float = 2.0,
     photometric_weight: float = 1.0,
-    min_geo_scale_m: float = 5e-4,
-    min_pho_scale: float = 2.0 / 255.0,
+    min_geo_scale_m: float = _MIN_GEO_SCALE_M,
+    min_pho_scale: float = _MIN_PHO_SCALE,
     finest_step: int = 1,
     fitness_depth_max_m: float = float("inf"),
     degenerate_ratio: float = 0.0,

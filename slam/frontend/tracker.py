@@ -18,7 +18,9 @@ rescued by ORB + RANSAC against the last keyframes.
    hand-held camera can accelerate is aligned again with colour joining depth (depth slides
    along a wall filling the view; texture does not); :meth:`~Tracker.colour_first_step`: the
    first step, aligned with colour taken off the depth's instant, again once the step gives
-   where the colour cameras were;
+   where the colour cameras were; :meth:`~Tracker.colour_step` (opt-in,
+   ``tracking.colour_step_weight``): the estimate refined against the previous frame's
+   colour, depth's estimate a prior, at the weight colour has earned on the recording;
 5. :meth:`~Tracker.verify`: the checks; after a gap, or with an overlap far below the recent
    frames', the pose must be supported by ORB matches;
 6. :meth:`~Tracker.commit`: the pose becomes the previous frame of the next one, and maybe a
@@ -45,8 +47,10 @@ from slam.frontend.frame import PreparedFrame, icp_depth_range
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
 from slam.frontend.motion import MAX_EXTRAPOLATION, colour_motion, scale_motion
+from slam.frontend.photometric import colour_equations, colour_refine
 from slam.frontend.tracker_state import TrackerState
 from slam.geometry import (
+    exp_se3,
     inv_T,
     orthonormalize,
     rotation_angle_deg,
@@ -175,6 +179,7 @@ class Tracker:
         self.alternatives(att, model)
         self.check_motion(att, model)
         self.colour_first_step(att, model)
+        self.colour_step(att)
         self.verify(att)
         T = self.commit(att)
         att.status.ms = (time.perf_counter() - t0) * 1e3 + p.prep_ms
@@ -355,6 +360,46 @@ class Tracker:
         if estimate[2] >= self.cfg.min_overlap and estimate[1].fitness >= self.cfg.min_fitness:
             att.keep(*estimate)
 
+    def colour_step(self, att: Attempt) -> None:
+        """Stage 4d (``tracking.colour_step_weight`` > 0, where colour is registered): the
+        estimate refined against the previous frame's image, depth's estimate as a prior with
+        its information (:func:`slam.frontend.photometric.colour_refine`), at the weight colour
+        has earned on this recording (:class:`~slam.frontend.colour_agreement.ColourAgreement`:
+        colour's disagreement with depth where depth is surest, over depth's own). The colour
+        cameras are where :meth:`predict` or, on the first step, :meth:`colour_first_step`
+        placed them."""
+        cfg, st, prev = self.cfg, self.state, att.prev_frame
+        att.T_world_depth = att.T_world_cam
+        if not (cfg.colour_step_weight > 0 and att.ok and prev is not None):
+            return
+        levels = len(cfg.iterations)
+        source, target = att.frame.photometric_image(levels), prev.photometric_image(levels)
+        if source is None or target is None:
+            return
+        assert att.T_world_cam is not None
+        poses = (att.frame.T_depth_colour, prev.T_depth_colour)
+        corr, huber = cfg.max_correspondence_m, cfg.huber_delta_m
+        first = colour_equations(
+            source, target, inv_T(att.T_world_prev) @ att.T_world_cam, corr, huber,
+            colour_poses=poses,
+        )  # fmt: skip
+        if first is None:
+            return
+        if att.f2f is not None and st.T_world_prev_depth is not None:
+            colour_alone = exp_se3(first.colour_alone()) @ first.T_target_source
+            st.colour_agreement.add(
+                first.H_geo,
+                first.H_pho,
+                first.depth_m,
+                (colour_alone, inv_T(st.T_world_prev_depth) @ att.T_world_cam, att.f2f),
+            )
+        weight = cfg.colour_step_weight * st.colour_agreement.weight()
+        T_prev_cur = colour_refine(
+            source, target, first, weight, cfg.colour_step_iterations, corr, huber,
+            colour_poses=poses,
+        )  # fmt: skip
+        att.T_world_cam = att.T_world_prev @ T_prev_cur
+
     def verify(self, att: Attempt) -> None:
         """Stage 5: record the estimate's checks in the status. A passing estimate after a gap,
         or with an overlap far below the recent frames' (a jump the prediction did not see,
@@ -409,7 +454,8 @@ class Tracker:
         p.T_depth_colour = colour_motion(step, att.dt_s, p.frame.color_dt_s)
         if att.feats is not None:
             att.feats = p.features
-        st.advance(p, T, velocity, att.overlap, att.feats)
+        moved = att.T_world_depth is not None and att.T_world_depth is not att.T_world_cam
+        st.advance(p, T, velocity, att.overlap, att.feats, att.T_world_depth if moved else None)
         kf = self.last_keyframe
         if kf is not None:
             rel = inv_T(kf.T_world_cam) @ T
@@ -481,3 +527,4 @@ def _unverified_reason(
         f"{cfg.hypothesis_overlap} and < {cfg.verify_overlap_ratio} x the "
         f"recent frames' {usual:.2f}"
     )
+

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from slam.errors import SlamError
+from slam.frontend.colour_agreement import ColourAgreement
 from slam.frontend.frame import PreparedFrame
 from slam.frontend.photometric import RgbdImage
 from slam.frontend.pointcloud import depth_pyramid
@@ -41,6 +42,10 @@ class TrackerState:
     # are aligned to against the model (tracking.photometric_reference: keyframe); empty
     # without colour
     references: list[tuple[RgbdImage, np.ndarray]] = field(default_factory=list)
+    # the previous frame's pose by depth against the model (before tracking.colour_step_weight
+    # moved it), and how far colour has been trusted on this recording
+    T_world_prev_depth: np.ndarray | None = None
+    colour_agreement: ColourAgreement = field(default_factory=ColourAgreement)
 
     @property
     def velocity_known(self) -> bool:
@@ -59,6 +64,7 @@ class TrackerState:
         """Tracking starts again at a frame with a known pose, from rest (the colour
         references start again with it: a new segment's world is not the old one's)."""
         self.T_world_prev = T_world_cam
+        self.T_world_prev_depth = T_world_cam
         self.references = []
         self.velocity = np.eye(4)
         self.prev_depth = p.depth_m
@@ -75,12 +81,15 @@ class TrackerState:
         velocity: np.ndarray,
         overlap: float,
         feats: FeatureSet | None,
+        T_world_depth: np.ndarray | None = None,
     ) -> None:
         """A tracked frame becomes the previous one (``velocity``: its motion per usual frame
-        interval; ``overlap``: with the model, for the suspect-overlap check of the next)."""
+        interval; ``overlap``: with the model, for the suspect-overlap check of the next;
+        ``T_world_depth``: its pose by depth against the model, when colour moved it)."""
         self.recent_overlaps = (self.recent_overlaps + [float(overlap)])[-10:]
         self.velocity = velocity
         self.T_world_prev = T_world_cam
+        self.T_world_prev_depth = T_world_cam if T_world_depth is None else T_world_depth
         self.prev_depth = p.depth_m
         self.prev_pyramid = p.pyramid
         self.prev_frame = p
@@ -129,6 +138,8 @@ class TrackerState:
             "recent_overlaps": list(self.recent_overlaps),
             "t_prev": self.t_prev,
             "keyframes": [kf.id for kf in self.keyframes],
+            "T_world_prev_depth": self.T_world_prev_depth,
+            "colour_agreement": np.asarray(self.colour_agreement.factors, float).reshape(-1, 2),
         }
 
     @staticmethod
@@ -160,6 +171,11 @@ class TrackerState:
             keyframes=[keyframes_by_id[int(i)] for i in d["keyframes"]],
             recent_overlaps=list(d["recent_overlaps"]),
             t_prev=d.get("t_prev"),
+            # checkpoints written before tracking.colour_step_weight: the pose was depth's
+            T_world_prev_depth=d.get("T_world_prev_depth", d["T_world_prev"]),
+            colour_agreement=ColourAgreement(
+                [(float(a), float(b)) for a, b in np.reshape(d.get("colour_agreement", []), (-1, 2))]
+            ),
         )
 
 
