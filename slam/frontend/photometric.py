@@ -333,14 +333,16 @@ def _term_equations(
     T: np.ndarray,
     terms: _Terms,
     T_colour: np.ndarray | None = None,
-) -> tuple[_NormalEquations, _NormalEquations | None, np.ndarray, np.ndarray] | None:
+    geometric_term: bool = True,
+) -> tuple[_NormalEquations | None, _NormalEquations | None, np.ndarray, np.ndarray] | None:
     """The two terms of :func:`joint_align` at pose ``T`` (``T_target_source``), apart:
     ``((H_geo, b_geo), (H_pho, b_pho) or None, geometric residuals, depths of the geometric
     correspondences)``; None when fewer than 6 source points correspond. The
     photometric term is None when its weight is 0, either side has no intensity, or fewer than
     6 points are visible. ``T_colour``: the pose of the source's colour camera in the target's
     colour camera, when the colour images were not taken at their depth images' instants
-    (None: ``T``)."""
+    (None: ``T``). Without the ``geometric_term`` its equations and residuals are None and the
+    depths are those of every corresponding point."""
     fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
     h, w = tgt.shape
     gate = terms.gate
@@ -354,16 +356,23 @@ def _term_equations(
     keep = zt > 0
     idx, pix, zt = idx[keep], pix[keep], zt[keep]
     Qi = Q[idx]
-    # geometric term: point-to-plane against the projectively associated target vertex
-    n = tgt.normal[pix]
-    r_g = np.einsum("ij,ij->i", Qi - tgt.vertex[pix], n)
-    geo = np.flatnonzero((np.abs(r_g) < gate) & tgt.has_normal[pix])
-    if len(geo) < 6:
-        return None
-    rg = r_g[geo]
-    s_g = _robust_scale(rg, terms.min_geo_scale_m)
-    wg = (_huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
-    geometric = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
+    geometric: _NormalEquations | None = None
+    if not geometric_term:
+        if len(idx) < 6:
+            return None
+        rg, z_geo = None, Qi[:, 2]
+    else:
+        # geometric term: point-to-plane against the projectively associated target vertex
+        n = tgt.normal[pix]
+        r_g = np.einsum("ij,ij->i", Qi - tgt.vertex[pix], n)
+        geo = np.flatnonzero((np.abs(r_g) < gate) & tgt.has_normal[pix])
+        if len(geo) < 6:
+            return None
+        rg = r_g[geo]
+        s_g = _robust_scale(rg, terms.min_geo_scale_m)
+        wg = (_huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
+        geometric = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
+        z_geo = Qi[geo, 2]
     photometric = None
     if terms.photometric_weight > 0 and src.intensity is not None and tgt.photo is not None:
         # photometric term, on source points the target surface does not hide
@@ -377,7 +386,7 @@ def _term_equations(
                 src.intensity[pi], tgt.photo, Qp, up, vp, inv_zp, fx, fy,
                 terms.photometric_weight, terms.min_pho_scale,
             )  # fmt: skip
-    return geometric, photometric, rg, Qi[geo, 2]
+    return geometric, photometric, rg, z_geo
 
 
 def _joint_equations(
@@ -394,7 +403,9 @@ def _joint_equations(
     parts = _term_equations(src, tgt, K, T, terms, T_colour)
     if parts is None:
         return None
-    (H, b), photometric, rg, z_geo = parts
+    geometric, photometric, rg, z_geo = parts
+    assert geometric is not None and rg is not None
+    H, b = geometric
     if photometric is not None:
         if terms.degenerate_ratio > 0:  # where depth is blind, colour decides alone
             H, b = without_blind_directions(H, b, float(np.median(z_geo)), terms.degenerate_ratio)
@@ -436,10 +447,14 @@ def colour_equations(
     level: int = 0,
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
     step: int = 1,
+    depth_information: tuple[np.ndarray, float] | None = None,
 ) -> ColourEquations | None:
     """:class:`ColourEquations` of ``source`` against ``target`` at ``T_target_source``; None
     when either has no intensity or the views do not correspond (fewer than 6 points).
-    ``colour_poses``: as in :func:`joint_align`; ``step``: every step-th source pixel."""
+    ``colour_poses``: as in :func:`joint_align`; ``step``: every step-th source pixel;
+    ``depth_information``: depth's information and median depth, when known (e.g. the frame's
+    own, :func:`~slam.frontend.weighted_icp.depth_information`): the geometric term is then not
+    evaluated."""
     if source.intensity is None or target.intensity is None:
         return None
     T = np.asarray(T_target_source, float)
@@ -457,12 +472,16 @@ def colour_equations(
         0.0,
     )
     parts = _term_equations(
-        source.source(level, step), target.target(level), target.K[level], T, terms, T_colour
-    )
+        source.source(level, step), target.target(level), target.K[level], T, terms, T_colour,
+        geometric_term=depth_information is None,
+    )  # fmt: skip
     if parts is None or parts[1] is None:
         return None
-    (H_geo, _), (H_pho, b_pho), _, z = parts
-    return ColourEquations(T, H_geo, H_pho, b_pho, float(np.median(z)))
+    geometric, (H_pho, b_pho), _, z = parts
+    if depth_information is not None:
+        return ColourEquations(T, depth_information[0], H_pho, b_pho, depth_information[1])
+    assert geometric is not None
+    return ColourEquations(T, geometric[0], H_pho, b_pho, float(np.median(z)))
 
 
 def colour_refine(
@@ -489,8 +508,9 @@ def colour_refine(
     for k in range(iterations if photometric_weight > 0 else 0):
         if k > 0:
             eq = colour_equations(
-                source, target, T, max_correspondence_m, huber_delta_m, level, colour_poses, step
-            )
+                source, target, T, max_correspondence_m, huber_delta_m, level, colour_poses, step,
+                (first.H_geo, first.depth_m),  # depth's information: the prior's, not needed
+            )  # fmt: skip
             if eq is None:
                 break
         H = first.H_geo + photometric_weight * eq.H_pho
