@@ -132,7 +132,7 @@ class TrackingConfig:
     # frame's image: depth's estimate a prior with its point-to-plane information, colour's
     # photometric cost at this weight times what colour has earned on the recording (its
     # disagreement with depth where depth is surest, over depth's own: 1 on synthetic
-    # sequences, ~1/400 on tum-fr1-xyz; slam.frontend.colour_agreement), in
+    # sequences, ~1/400 on tum-fr1-xyz; slam.frontend.colour_step), in
     # colour_step_iterations Gauss-Newton steps. Where depth is weak (a wall filling the view,
     # a corridor) colour holds the frame. 0 = off
     colour_step_weight: float = 0.0

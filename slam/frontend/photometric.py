@@ -41,8 +41,6 @@ _MAD = 1.4826
 # floors of the robust scales: depth's in metres, colour's in grey levels (of 1)
 _MIN_GEO_SCALE_M = 5e-4
 _MIN_PHO_SCALE = 2.0 / 255.0
-# a Gauss-Newton step moving the scene by less than this has converged (metres)
-_CONVERGED_M = 1e-6
 
 
 def grey(color: np.ndarray, factor: int = 1) -> np.ndarray:
@@ -415,112 +413,6 @@ def _joint_equations(
     # instead of making the system singular
     H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
     return H, b, rg
-
-
-@dataclass
-class ColourEquations:
-    """The two terms of :func:`joint_align` at one pose of a frame against the previous one,
-    for :func:`colour_refine`: depth's information ``H_geo`` (point-to-plane, at its robust
-    scale), colour's normal equations ``(H_pho, b_pho)`` at photometric weight 1, and the
-    median depth of the correspondences (to compare rotations with translations)."""
-
-    T_target_source: np.ndarray
-    H_geo: np.ndarray
-    H_pho: np.ndarray
-    b_pho: np.ndarray
-    depth_m: float
-
-    def colour_alone(self) -> np.ndarray:
-        """The twist of colour's own Gauss-Newton step from this pose (update
-        ``exp(twist) @ T_target_source``): where colour alone would put the frame."""
-        H = self.H_pho.copy()
-        H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
-        return -np.linalg.solve(H, self.b_pho)
-
-
-def colour_equations(
-    source: RgbdImage,
-    target: RgbdImage,
-    T_target_source: np.ndarray,
-    max_correspondence_m: float = 0.07,
-    huber_delta_m: float = 0.05,
-    level: int = 0,
-    colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
-    step: int = 1,
-    depth_information: tuple[np.ndarray, float] | None = None,
-) -> ColourEquations | None:
-    """:class:`ColourEquations` of ``source`` against ``target`` at ``T_target_source``; None
-    when either has no intensity or the views do not correspond (fewer than 6 points).
-    ``colour_poses``: as in :func:`joint_align`; ``step``: every step-th source pixel;
-    ``depth_information``: depth's information and median depth, when known (e.g. the frame's
-    own, :func:`~slam.frontend.weighted_icp.depth_information`): the geometric term is then not
-    evaluated."""
-    if source.intensity is None or target.intensity is None:
-        return None
-    T = np.asarray(T_target_source, float)
-    C_src, C_tgt = colour_poses
-    T_colour = None
-    if C_src is not None or C_tgt is not None:
-        T_colour = T if C_src is None else T @ C_src
-        T_colour = T_colour if C_tgt is None else inv_T(C_tgt) @ T_colour
-    terms = _Terms(
-        np.float32(max_correspondence_m),
-        huber_delta_m,
-        _MIN_GEO_SCALE_M,
-        1.0,
-        _MIN_PHO_SCALE,
-        0.0,
-    )
-    parts = _term_equations(
-        source.source(level, step), target.target(level), target.K[level], T, terms, T_colour,
-        geometric_term=depth_information is None,
-    )  # fmt: skip
-    if parts is None or parts[1] is None:
-        return None
-    geometric, (H_pho, b_pho), _, z = parts
-    if depth_information is not None:
-        return ColourEquations(T, depth_information[0], H_pho, b_pho, depth_information[1])
-    assert geometric is not None
-    return ColourEquations(T, geometric[0], H_pho, b_pho, float(np.median(z)))
-
-
-def colour_refine(
-    source: RgbdImage,
-    target: RgbdImage,
-    first: ColourEquations,
-    photometric_weight: float,
-    iterations: int,
-    max_correspondence_m: float = 0.07,
-    huber_delta_m: float = 0.05,
-    level: int = 0,
-    colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
-    step: int = 1,
-) -> np.ndarray:
-    """``T_target_source`` refined from ``first.T_target_source``, a pose whose depth alignment
-    is trusted (depth's optimum against the model), by Gauss-Newton on
-    ``1/2 x^T H_geo x + photometric_weight * E_pho``: depth as a Gaussian prior at its optimum,
-    with the information its point-to-plane term has there, and colour's cost. Where depth
-    constrains the pose its information holds the frame; where depth is weak (along a wall
-    filling the view, a corridor) colour moves it."""
-    T = first.T_target_source
-    eq: ColourEquations | None = first
-    moved = np.zeros(6)  # the twist from the depth optimum, summed over the steps
-    for k in range(iterations if photometric_weight > 0 else 0):
-        if k > 0:
-            eq = colour_equations(
-                source, target, T, max_correspondence_m, huber_delta_m, level, colour_poses, step,
-                (first.H_geo, first.depth_m),  # depth's information: the prior's, not needed
-            )  # fmt: skip
-            if eq is None:
-                break
-        H = first.H_geo + photometric_weight * eq.H_pho
-        H[np.diag_indices(6)] += 1e-9 * np.trace(H) + 1e-12
-        dx = -np.linalg.solve(H, first.H_geo @ moved + photometric_weight * eq.b_pho)
-        moved += dx
-        T = exp_se3(dx) @ T
-        if np.linalg.norm(dx[3:]) + first.depth_m * np.linalg.norm(dx[:3]) < _CONVERGED_M:
-            break  # converged: another step would move the frame by less than a micrometre
-    return T
 
 
 def joint_align(

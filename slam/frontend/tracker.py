@@ -42,15 +42,14 @@ from slam.config import TrackingConfig
 from slam.data.base import Frame
 from slam.errors import ConfigError, TrackingError
 from slam.frontend.alignment import Attempt, align_from, align_to_model, joint_weight
+from slam.frontend.colour_step import step_with_colour
 from slam.frontend.features import OrbExtractor
 from slam.frontend.frame import PreparedFrame, icp_depth_range
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
 from slam.frontend.motion import MAX_EXTRAPOLATION, colour_motion, scale_motion
-from slam.frontend.photometric import colour_equations, colour_refine
 from slam.frontend.tracker_state import TrackerState
 from slam.geometry import (
-    exp_se3,
     inv_T,
     orthonormalize,
     rotation_angle_deg,
@@ -363,8 +362,8 @@ class Tracker:
     def colour_step(self, att: Attempt) -> None:
         """Stage 4d (``tracking.colour_step_weight`` > 0, where colour is registered): the
         estimate refined against the previous frame's image, depth's estimate as a prior with
-        its information (:func:`slam.frontend.photometric.colour_refine`), at the weight colour
-        has earned on this recording (:class:`~slam.frontend.colour_agreement.ColourAgreement`:
+        its information (:func:`slam.frontend.colour_step.colour_refine`), at the weight colour
+        has earned on this recording (:class:`~slam.frontend.colour_step.ColourAgreement`:
         colour's disagreement with depth where depth is surest, over depth's own). The colour
         cameras are where :meth:`predict` or, on the first step, :meth:`colour_first_step`
         placed them. Not under a large motion (a fast step, a gap: the photometric term's basin
@@ -381,28 +380,18 @@ class Tracker:
         if source is None or target is None:
             return
         assert att.T_world_cam is not None
-        poses = (att.frame.T_depth_colour, prev.T_depth_colour)
-        corr, huber = cfg.max_correspondence_m, cfg.huber_delta_m
-        first = colour_equations(
-            source, target, inv_T(att.T_world_prev) @ att.T_world_cam, corr, huber,
-            colour_poses=poses,
+        depth_step = None  # this frame's depth estimate relative to the previous frame's
+        if st.T_world_prev_depth is not None:
+            depth_step = inv_T(st.T_world_prev_depth) @ att.T_world_cam
+        T_prev_cur = inv_T(att.T_world_prev) @ att.T_world_cam
+        refined = step_with_colour(
+            source, target, T_prev_cur, st.colour_agreement,
+            (depth_step, att.f2f), cfg.colour_step_weight, cfg.colour_step_iterations,
+            cfg.max_correspondence_m, cfg.huber_delta_m,
+            colour_poses=(att.frame.T_depth_colour, prev.T_depth_colour),
         )  # fmt: skip
-        if first is None:
-            return
-        if att.f2f is not None and st.T_world_prev_depth is not None:
-            colour_alone = exp_se3(first.colour_alone()) @ first.T_target_source
-            st.colour_agreement.add(
-                first.H_geo,
-                first.H_pho,
-                first.depth_m,
-                (colour_alone, inv_T(st.T_world_prev_depth) @ att.T_world_cam, att.f2f),
-            )
-        weight = cfg.colour_step_weight * st.colour_agreement.weight()
-        T_prev_cur = colour_refine(
-            source, target, first, weight, cfg.colour_step_iterations, corr, huber,
-            colour_poses=poses,
-        )  # fmt: skip
-        att.T_world_cam = att.T_world_prev @ T_prev_cur
+        if refined is not T_prev_cur:
+            att.T_world_cam = att.T_world_prev @ refined
 
     def verify(self, att: Attempt) -> None:
         """Stage 5: record the estimate's checks in the status. A passing estimate after a gap,
@@ -531,4 +520,3 @@ def _unverified_reason(
         f"{cfg.hypothesis_overlap} and < {cfg.verify_overlap_ratio} x the "
         f"recent frames' {usual:.2f}"
     )
-

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from slam.errors import SlamError
-from slam.frontend.colour_agreement import ColourAgreement
+from slam.frontend.colour_step import ColourAgreement
 from slam.frontend.frame import PreparedFrame
 from slam.frontend.photometric import RgbdImage
 from slam.frontend.pointcloud import depth_pyramid

@@ -1,10 +1,7 @@
 import numpy as np
-import pytest
 
 from slam.frontend.photometric import (
     RgbdImage,
-    colour_equations,
-    colour_refine,
     grey,
     joint_align,
     mean_warped_intensity,
@@ -163,32 +160,3 @@ def test_colour_taken_from_another_pose_is_aligned_from_there():
         errors[told] = translation_norm(inv_T(motion) @ res.T_target_source)
     assert errors[False] > 0.003, errors
     assert errors[True] < 3e-4, errors
-
-
-def test_colour_refine_follows_colour_where_depth_is_blind_and_weighs_both_elsewhere():
-    """The frame-to-frame colour step of tracking (``tracking.colour_step_weight``): a frame
-    whose depth estimate slid 8 mm along a textured wall (depth is blind there) and is 3 mm
-    off along the wall's normal (where depth is sure: its estimate is the prior the step starts
-    from). Colour moves it along the wall onto the truth at any weight; along the normal the two
-    are weighed: colour at a thousandth of depth's weight (as on tum-fr1-xyz) leaves the frame
-    where depth put it, at equal weight (exact images: colour sees the normal motion as the
-    texture's scale) it goes part of the way. At weight 0 nothing moves."""
-    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
-    T_a = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 2.0], up=(0, -1, 0))
-    motion = exp_se3(np.array([0.0, 0.0, np.radians(1.0), 0.02, -0.01, 0.0]))
-    da, ca = _textured_wall(K, 320, 240, T_a)
-    db, cb = _textured_wall(K, 320, 240, T_a @ motion)
-    target = RgbdImage(da, grey(ca), K, 3)
-    source = RgbdImage(db, grey(cb), K, 3)
-    # the camera looks along +z at the wall: x slides along it, z moves along its normal
-    start = exp_se3(np.array([0.0, 0.0, 0.0, 0.008, 0.0, 0.003])) @ motion
-    first = colour_equations(source, target, start)
-    assert first is not None and first.depth_m == pytest.approx(2.0, abs=0.05)
-    assert np.array_equal(colour_refine(source, target, first, 0.0, 3), start)
-    offsets = {}
-    for weight in (1e-3, 1.0):
-        T = colour_refine(source, target, first, weight, 3)
-        offsets[weight] = (T @ inv_T(motion))[:3, 3]  # where the frame is left, target camera
-        assert np.abs(offsets[weight][:2]).max() < 5e-4, offsets  # along the wall: the truth
-    assert offsets[1e-3][2] == pytest.approx(0.003, abs=1e-4)  # depth's estimate holds
-    assert 0.0 < offsets[1.0][2] < 0.0025  # weighed against colour
