@@ -74,10 +74,13 @@ def synthetic_rows(
     exact=(),
     only: str = "",
     unsynced=(),
+    drift_bias: float = 0.0,
 ) -> list[Row]:
     """Every kind x speed x seed, then the ``exact`` (kind, speed, seed) rows without noise and
     the ``unsynced`` ones with colour taken up to ``UNSYNCED_MS`` off the depth; ``only``:
-    comma-separated substrings of the row names to keep (the others are not generated)."""
+    comma-separated substrings of the row names to keep (the others are not generated);
+    ``drift_bias``: every row's depth distorted radially, as an uncalibrated Kinect's
+    (``SynthConfig.drift_bias``; the names end in ``-d`` and the bias in thousandths)."""
     from slam.demo import cache_dir
     from slam.synthetic import SynthConfig, generate_sequence, is_complete
 
@@ -90,11 +93,13 @@ def synthetic_rows(
             f"{kind}-x{speed:g}-s{seed}" + ("-half" if half else "") + ("" if noise else "-exact")
         )
         name += f"-c{offset_ms:g}" if offset_ms else ""
+        name += f"-d{1000 * drift_bias:g}" if drift_bias else ""
         if only and not any(s in name for s in only.split(",")):
             continue
         kw = dict(frames=frames, scene=kind, speed=speed, seed=seed, loop=kind == "room")
         kw["noise"] = noise
         kw["color_offset_ms"] = offset_ms
+        kw["drift_bias"] = drift_bias
         cfg = SynthConfig.half_resolution(**kw) if half else SynthConfig(**kw)
         # v2 of the unsynchronised rows: the colour camera at its own steady rate (v1 drew
         # each frame's offset independently)
@@ -326,6 +331,10 @@ def main(argv: list[str] | None = None) -> int:
         "--no-unsynced", action="store_true", help="without the unsynchronised-colour rows"
     )
     ap.add_argument("--only", default="", help="comma-separated substrings: run matching rows")
+    ap.add_argument(
+        "--drift-bias", type=float, default=0.0,
+        help="radial depth distortion of every synthetic row (e.g. 0.006; rows named -d6)",
+    )  # fmt: skip
     ap.add_argument("--small", action="store_true", help="CI version: 2 tiny synthetic rows")
     ap.add_argument("--out", type=Path, default=None, help="JSON path (default results/)")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("OLD", "NEW"))
@@ -353,6 +362,7 @@ def main(argv: list[str] | None = None) -> int:
             unsynced=()
             if args.no_unsynced
             else [e for e in UNSYNCED if e[0] in args.kinds.split(",")],
+            drift_bias=args.drift_bias,
         )
         rows = ([] if args.no_real else real_rows()) + rows
     if args.only:
