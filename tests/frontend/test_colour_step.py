@@ -2,10 +2,8 @@ import numpy as np
 import pytest
 
 from slam.frontend.colour_step import WINDOW, ColourAgreement, colour_equations, colour_refine
-from slam.frontend.photometric import RgbdImage, grey
 from slam.geometry import exp_se3, inv_T
-from tests.conftest import look_at
-from tests.frontend.test_photometric import _textured_wall
+from tests.frontend.test_photometric import wall_views
 
 
 def _agreement(
@@ -61,13 +59,8 @@ def test_colour_refine_follows_colour_where_depth_is_blind_and_weighs_both_elsew
     are weighed: colour at a thousandth of depth's weight (as on tum-fr1-xyz) leaves the frame
     where depth put it, at equal weight (exact images: colour sees the normal motion as the
     texture's scale) it goes part of the way. At weight 0 nothing moves."""
-    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
-    T_a = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 2.0], up=(0, -1, 0))
     motion = exp_se3(np.array([0.0, 0.0, np.radians(1.0), 0.02, -0.01, 0.0]))
-    da, ca = _textured_wall(K, 320, 240, T_a)
-    db, cb = _textured_wall(K, 320, 240, T_a @ motion)
-    target = RgbdImage(da, grey(ca), K, 3)
-    source = RgbdImage(db, grey(cb), K, 3)
+    _, source, target = wall_views(motion)
     # the camera looks along +z at the wall: x slides along it, z moves along its normal
     start = exp_se3(np.array([0.0, 0.0, 0.0, 0.008, 0.0, 0.003])) @ motion
     first = colour_equations(source, target, start)

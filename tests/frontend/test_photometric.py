@@ -23,6 +23,16 @@ def _textured_wall(K, w, h, T_world_cam):
     return t.astype(np.float32), color  # rays have z = 1: t is the z-depth
 
 
+def wall_views(motion: np.ndarray) -> tuple[np.ndarray, RgbdImage, RgbdImage]:
+    """``(K, source, target)``: a camera 2 m in front of the textured wall (target) and the
+    same camera moved by ``motion`` (source), 320 x 240, three pyramid levels."""
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
+    T_a = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 2.0], up=(0, -1, 0))
+    da, ca = _textured_wall(K, 320, 240, T_a)
+    db, cb = _textured_wall(K, 320, 240, T_a @ motion)
+    return K, RgbdImage(db, grey(cb), K, 3), RgbdImage(da, grey(ca), K, 3)
+
+
 def test_colour_resolves_sliding_along_a_flat_wall():
     """A flat wall leaves point-to-plane ICP blind to sliding along it (and to the turn about
     its normal); the photometric term of the joint alignment recovers the motion (measured:
