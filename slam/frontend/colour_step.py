@@ -106,10 +106,11 @@ class ColourAgreement:
 
 @dataclass
 class ColourEquations:
-    """The two terms of :func:`joint_align` at one pose of a frame against the previous one,
-    for :func:`colour_refine`: depth's information ``H_geo`` (point-to-plane, at its robust
-    scale), colour's normal equations ``(H_pho, b_pho)`` at photometric weight 1, and the
-    median depth of the correspondences (to compare rotations with translations)."""
+    """The two terms of :func:`~slam.frontend.photometric.joint_align` at one pose of a frame
+    against the previous one, for :func:`colour_refine`: depth's information ``H_geo``
+    (point-to-plane, at its robust scale), colour's normal equations ``(H_pho, b_pho)`` at
+    photometric weight 1, and the median depth of the correspondences (to compare rotations
+    with translations)."""
 
     T_target_source: np.ndarray
     H_geo: np.ndarray
