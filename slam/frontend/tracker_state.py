@@ -3,7 +3,9 @@
 The previous frame (pose, depth, pyramids, features, timestamp), the motion model's velocity,
 the keyframes made so far, the recent overlaps (for the suspect-overlap check) and the colour
 references (the last keyframes' images, which the joint alignment against the model warps into
-the model's view). :class:`~slam.frontend.tracker.Tracker` owns one and its stages update it;
+the model's view), and for the opt-in colour step the previous frame's pose by depth alone and
+colour's measured agreement with depth (:class:`~slam.frontend.colour_step.ColourAgreement`).
+:class:`~slam.frontend.tracker.Tracker` owns one and its stages update it;
 :meth:`TrackerState.to_dict` / :meth:`TrackerState.from_dict` are its checkpoint form (plain
 data and arrays).
 """
