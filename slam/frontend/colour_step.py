@@ -168,7 +168,7 @@ def colour_equations(
     geometric, (H_pho, b_pho), _, z = parts
     if depth_information is not None:
         return ColourEquations(T, depth_information[0], H_pho, b_pho, depth_information[1])
-    assert geometric is not None
+    assert geometric is not None and z is not None
     return ColourEquations(T, geometric[0], H_pho, b_pho, float(np.median(z)))
 
 

@@ -322,6 +322,10 @@ def _project(
 
 
 _NormalEquations = tuple[np.ndarray, np.ndarray]  # (H, b) of one term
+# both terms' equations, the geometric residuals and the correspondences' depths
+_Parts = tuple[
+    _NormalEquations | None, _NormalEquations | None, np.ndarray | None, np.ndarray | None
+]
 
 
 def _term_equations(
@@ -332,15 +336,15 @@ def _term_equations(
     terms: _Terms,
     T_colour: np.ndarray | None = None,
     geometric_term: bool = True,
-) -> tuple[_NormalEquations | None, _NormalEquations | None, np.ndarray, np.ndarray] | None:
+) -> _Parts | None:
     """The two terms of :func:`joint_align` at pose ``T`` (``T_target_source``), apart:
     ``((H_geo, b_geo), (H_pho, b_pho) or None, geometric residuals, depths of the geometric
     correspondences)``; None when fewer than 6 source points correspond. The
     photometric term is None when its weight is 0, either side has no intensity, or fewer than
     6 points are visible. ``T_colour``: the pose of the source's colour camera in the target's
     colour camera, when the colour images were not taken at their depth images' instants
-    (None: ``T``). Without the ``geometric_term`` its equations and residuals are None and the
-    depths are those of every corresponding point."""
+    (None: ``T``). The depths come with the photometric term only; without the
+    ``geometric_term`` its equations, residuals and the depths are None."""
     fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
     h, w = tgt.shape
     gate = terms.gate
@@ -358,7 +362,7 @@ def _term_equations(
     if not geometric_term:
         if len(idx) < 6:
             return None
-        rg, z_geo = None, Qi[:, 2]
+        rg = None
     else:
         # geometric term: point-to-plane against the projectively associated target vertex
         n = tgt.normal[pix]
@@ -370,7 +374,6 @@ def _term_equations(
         s_g = _robust_scale(rg, terms.min_geo_scale_m)
         wg = (_huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
         geometric = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
-        z_geo = Qi[geo, 2]
     photometric = None
     if terms.photometric_weight > 0 and src.intensity is not None and tgt.photo is not None:
         # photometric term, on source points the target surface does not hide
@@ -384,6 +387,9 @@ def _term_equations(
                 src.intensity[pi], tgt.photo, Qp, up, vp, inv_zp, fx, fy,
                 terms.photometric_weight, terms.min_pho_scale,
             )  # fmt: skip
+    # the correspondences' depths (to compare rotations with translations), only for the
+    # combinations that use them: not on every depth-only iteration
+    z_geo = Qi[geo, 2] if geometric_term and photometric is not None else None
     return geometric, photometric, rg, z_geo
 
 
@@ -406,6 +412,7 @@ def _joint_equations(
     H, b = geometric
     if photometric is not None:
         if terms.degenerate_ratio > 0:  # where depth is blind, colour decides alone
+            assert z_geo is not None
             H, b = without_blind_directions(H, b, float(np.median(z_geo)), terms.degenerate_ratio)
         H = H + photometric[0]
         b = b + photometric[1]
