@@ -393,20 +393,9 @@ def _term_equations(
     return geometric, photometric, rg, z_geo
 
 
-def _joint_equations(
-    src: _SourceLevel,
-    tgt: _TargetLevel,
-    K: np.ndarray,
-    T: np.ndarray,
-    terms: _Terms,
-    T_colour: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """One Gauss-Newton iteration's normal equations ``(H, b)`` of :func:`joint_align` at pose
-    ``T`` (``T_target_source``) and the geometric residuals of its correspondences; None when
-    fewer than 6 source points correspond (``T_colour``: see :func:`_term_equations`)."""
-    parts = _term_equations(src, tgt, K, T, terms, T_colour)
-    if parts is None:
-        return None
+def _joint_equations(parts: _Parts, terms: _Terms) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One Gauss-Newton iteration's normal equations ``(H, b)`` of :func:`joint_align` from its
+    two terms (:func:`_term_equations`), and the geometric residuals of its correspondences."""
     geometric, photometric, rg, z_geo = parts
     assert geometric is not None and rg is not None
     H, b = geometric
@@ -483,10 +472,10 @@ def joint_align(
             if use_pho and (C_src is not None or C_tgt is not None):
                 T_colour = T if C_src is None else T @ C_src
                 T_colour = T_colour if C_tgt is None else inv_T(C_tgt) @ T_colour
-            equations = _joint_equations(src, tgt, target.K[level], T, terms, T_colour)
-            if equations is None:
+            parts = _term_equations(src, tgt, target.K[level], T, terms, T_colour)
+            if parts is None:
                 return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)
-            H, b, rg = equations
+            H, b, rg = _joint_equations(parts, terms)
             T = exp_se3(-np.linalg.solve(H, b)) @ T
             if level == 0:
                 fitness = min(1.0, len(rg) / max(in_range, 1))
