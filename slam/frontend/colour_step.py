@@ -29,6 +29,7 @@ shapes (depth weak along a wall, colour weak where there is no texture).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,6 +41,7 @@ from slam.frontend.photometric import (
     _term_equations,
     _Terms,
 )
+from slam.frontend.robust import median
 from slam.frontend.weighted_icp import metric_eigen
 from slam.geometry import exp_se3, inv_T, log_se3
 
@@ -132,17 +134,18 @@ def colour_equations(
     T_target_source: np.ndarray,
     max_correspondence_m: float = 0.07,
     huber_delta_m: float = 0.05,
-    level: int = 0,
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
-    step: int = 1,
+    textured: float = 1.0,
+    geometry_level: int = 0,
     depth_information: tuple[np.ndarray, float] | None = None,
 ) -> ColourEquations | None:
     """:class:`ColourEquations` of ``source`` against ``target`` at ``T_target_source``; None
     when either has no intensity or the views do not correspond (fewer than 6 points).
-    ``colour_poses``: as in :func:`joint_align`; ``step``: every step-th source pixel;
-    ``depth_information``: depth's information and median depth, when known (e.g. the frame's
-    own, :func:`~slam.frontend.weighted_icp.depth_information`): the geometric term is then not
-    evaluated."""
+    ``colour_poses``: as in :func:`joint_align`. Colour's term on the ``textured`` fraction of
+    the source pixels (finest level) whose intensity changes fastest
+    (:meth:`~slam.frontend.photometric.RgbdImage.textured`; 1: all), depth's on pyramid level
+    ``geometry_level``. ``depth_information``: depth's information and median depth, when
+    known (the Gauss-Newton steps after the first): depth's term is then not evaluated."""
     if source.intensity is None or target.intensity is None:
         return None
     T = np.asarray(T_target_source, float)
@@ -159,17 +162,28 @@ def colour_equations(
         _MIN_PHO_SCALE,
         0.0,
     )
+    both = textured >= 1.0 and geometry_level == 0 and depth_information is None
+    src = source.source(0) if textured >= 1.0 else source.textured(0, textured)
     parts = _term_equations(
-        source.source(level, step), target.target(level), target.K[level], T, terms, T_colour,
-        geometric_term=depth_information is None,
+        src, target.target(0, geometry=both), target.K[0], T, terms, T_colour,
+        geometric_term=both,
     )  # fmt: skip
     if parts is None or parts[1] is None:
         return None
-    geometric, (H_pho, b_pho), _, z = parts
+    H_pho, b_pho = parts[1]
     if depth_information is not None:
         return ColourEquations(T, depth_information[0], H_pho, b_pho, depth_information[1])
-    assert geometric is not None and z is not None
-    return ColourEquations(T, geometric[0], H_pho, b_pho, float(np.median(z)))
+    if both:  # one pass over the pixels gives both terms
+        assert parts[0] is not None and parts[3] is not None
+        return ColourEquations(T, parts[0][0], H_pho, b_pho, median(parts[3]))
+    level = min(geometry_level, len(source.depth) - 1)
+    depth_terms = dataclasses.replace(terms, photometric_weight=0.0)
+    geo = _term_equations(
+        source.source(level), target.target(level), target.K[level], T, depth_terms
+    )
+    if geo is None or geo[0] is None:
+        return None
+    return ColourEquations(T, geo[0][0], H_pho, b_pho, median(source.source(level).points[:, 2]))
 
 
 def colour_refine(
@@ -180,9 +194,8 @@ def colour_refine(
     iterations: int,
     max_correspondence_m: float = 0.07,
     huber_delta_m: float = 0.05,
-    level: int = 0,
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
-    step: int = 1,
+    textured: float = 1.0,
 ) -> np.ndarray:
     """``T_target_source`` refined from ``first.T_target_source``, a pose whose depth alignment
     is trusted (depth's optimum against the model), by Gauss-Newton on
@@ -196,8 +209,8 @@ def colour_refine(
     for k in range(iterations if photometric_weight > 0 else 0):
         if k > 0:
             eq = colour_equations(
-                source, target, T, max_correspondence_m, huber_delta_m, level, colour_poses, step,
-                (first.H_geo, first.depth_m),  # depth's information: the prior's, not needed
+                source, target, T, max_correspondence_m, huber_delta_m, colour_poses, textured,
+                depth_information=(first.H_geo, first.depth_m),  # the prior's: not evaluated
             )  # fmt: skip
             if eq is None:
                 break
@@ -222,6 +235,8 @@ def step_with_colour(
     max_correspondence_m: float = 0.07,
     huber_delta_m: float = 0.05,
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    textured: float = 1.0,
+    geometry_level: int = 0,
 ) -> np.ndarray:
     """A frame's depth estimate ``T_prev_cur`` against the previous frame (``source`` against
     ``target``) refined by :func:`colour_refine` at ``weight`` times the weight colour has
@@ -229,8 +244,9 @@ def step_with_colour(
     frame-to-model depth step, relative to the previous frame's depth estimate, and its
     frame-to-frame ICP step). Unchanged when the views do not correspond."""
     first = colour_equations(
-        source, target, T_prev_cur, max_correspondence_m, huber_delta_m, colour_poses=colour_poses
-    )
+        source, target, T_prev_cur, max_correspondence_m, huber_delta_m, colour_poses,
+        textured, geometry_level,
+    )  # fmt: skip
     if first is None:
         return T_prev_cur
     depth_step, f2f_step = measured
@@ -239,5 +255,5 @@ def step_with_colour(
         agreement.add(first.H_geo, first.H_pho, first.depth_m, (colour_alone, depth_step, f2f_step))
     return colour_refine(
         source, target, first, weight * agreement.weight(), iterations, max_correspondence_m,
-        huber_delta_m, colour_poses=colour_poses,
+        huber_delta_m, colour_poses, textured,
     )  # fmt: skip

@@ -34,10 +34,10 @@ import numpy as np
 from slam.camera import scale_intrinsics
 from slam.frontend.icp import IcpResult
 from slam.frontend.pointcloud import depth_pyramid, normal_map
+from slam.frontend.robust import huber_weights, median, robust_scale
 from slam.frontend.weighted_icp import vertex_map, without_blind_directions
 from slam.geometry import exp_se3, inv_T
 
-_MAD = 1.4826
 # floors of the robust scales: depth's in metres, colour's in grey levels (of 1)
 _MIN_GEO_SCALE_M = 5e-4
 _MIN_PHO_SCALE = 2.0 / 255.0
@@ -96,11 +96,13 @@ def _source_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray
     return _SourceLevel(pts, inten)
 
 
-def _target_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray) -> _TargetLevel:
+def _target_level(
+    depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray, geometry: bool = True
+) -> _TargetLevel:
+    """A target level; without ``geometry`` its vertices and normals are empty (for the
+    photometric term alone)."""
     h, w = depth.shape
     z = depth.astype(np.float32)
-    vertex = vertex_map(z, K)
-    normal = normal_map(vertex, f_px=float(K[0, 0]))
     photo = None
     if intensity is not None:
         i = np.asarray(intensity, np.float32)
@@ -109,7 +111,11 @@ def _target_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray
         gx[:, 1:-1] = 0.5 * (i[:, 2:] - i[:, :-2])
         gy[1:-1, :] = 0.5 * (i[2:, :] - i[:-2, :])
         photo = np.ascontiguousarray(np.stack([i, gx, gy], axis=-1))
-    normal = normal.reshape(-1, 3)
+    if not geometry:
+        empty = np.zeros((0, 3), np.float32)
+        return _TargetLevel((h, w), z.reshape(-1), empty, empty, photo, np.zeros(0, bool))
+    vertex = vertex_map(z, K)
+    normal = normal_map(vertex, f_px=float(K[0, 0])).reshape(-1, 3)
     has_normal = np.any(normal != 0, axis=1)
     return _TargetLevel((h, w), z.reshape(-1), vertex.reshape(-1, 3), normal, photo, has_normal)
 
@@ -144,11 +150,37 @@ class RgbdImage:
             self._src[key] = _source_level(self.depth[level], inten, self.K[level], step)
         return self._src[key]
 
-    def target(self, level: int) -> _TargetLevel:
-        if level not in self._tgt:
+    def textured(self, level: int, fraction: float) -> _SourceLevel:
+        """The source's pixels with depth whose intensity changes fastest (central
+        differences), ``fraction`` of them: where the photometric term's information is (its
+        Jacobian is the image gradient)."""
+        key = (level, -int(round(1e6 * fraction)))
+        if key not in self._src:
+            assert self.intensity is not None
+            depth, inten, K = self.depth[level], self.intensity[level], self.K[level]
+            i = np.asarray(inten, np.float32)
+            g2 = np.zeros_like(i)
+            g2[1:-1, 1:-1] = (i[1:-1, 2:] - i[1:-1, :-2]) ** 2 + (i[2:, 1:-1] - i[:-2, 1:-1]) ** 2
+            flat = np.flatnonzero(depth.reshape(-1) > 0)
+            m = int(np.ceil(fraction * len(flat)))
+            if 0 < m < len(flat):
+                flat = flat[np.argpartition(-g2.reshape(-1)[flat], m - 1)[:m]]
+            flat.sort()
+            v, u = np.divmod(flat, depth.shape[1])
+            z = depth[v, u].astype(np.float32)
+            x = ((u - K[0, 2]) / K[0, 0]).astype(np.float32) * z
+            y = ((v - K[1, 2]) / K[1, 1]).astype(np.float32) * z
+            self._src[key] = _SourceLevel(np.stack([x, y, z], axis=-1), i[v, u])
+        return self._src[key]
+
+    def target(self, level: int, geometry: bool = True) -> _TargetLevel:
+        """The view as a target at ``level``; without ``geometry`` (for the photometric term
+        alone) its vertices and normals may be left out."""
+        key = level if geometry or level in self._tgt else -1 - level
+        if key not in self._tgt:
             inten = None if self.intensity is None else self.intensity[level]
-            self._tgt[level] = _target_level(self.depth[level], inten, self.K[level])
-        return self._tgt[level]
+            self._tgt[key] = _target_level(self.depth[level], inten, self.K[level], geometry)
+        return self._tgt[key]
 
 
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -195,7 +227,7 @@ def _warp_vertices(
     from ``src`` (intensity, depth): N intensities."""
     src_intensity, src_depth_m = src
     R, t = T_src_dst[:3, :3].astype(np.float32), T_src_dst[:3, 3].astype(np.float32)
-    Q = V @ R.T + t
+    Q = _tall_times(V, R.T) + t
     z = Q[:, 2]
     ok = (V[:, 2] > 0) & (z > 1e-3)
     inv_z = np.float32(1.0) / np.where(ok, z, np.float32(1.0))
@@ -239,17 +271,6 @@ def mean_warped_intensity(
     return out.reshape(depth_m.shape)
 
 
-def _huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
-    a = np.abs(r)
-    return np.where(a <= delta, np.float32(1.0), np.float32(delta) / np.maximum(a, 1e-12))
-
-
-def _robust_scale(r: np.ndarray, floor: float) -> float:
-    if len(r) == 0:
-        return floor
-    return max(_MAD * float(np.median(np.abs(r))), floor)
-
-
 def _cross_jacobian(Q: np.ndarray, g: np.ndarray) -> np.ndarray:
     """(N, 6) rows ``[Q x g, g]``: d(g . Q)/d(twist) for the update ``T <- exp(twist) T``."""
     J = np.empty((len(Q), 6), np.float32)
@@ -260,9 +281,33 @@ def _cross_jacobian(Q: np.ndarray, g: np.ndarray) -> np.ndarray:
     return J
 
 
+#: rows per block of a tall matrix product. OpenBLAS multiplies blocks this small on one thread;
+#: on tens of thousands of rows it uses its threads, which then spin for a while after the
+#: product and slow the next Open3D kernel by about half on two cores (docs/benchmarks.md,
+#: session 28)
+_BLOCK_ROWS = 4096
+
+
+def _tall_times(A: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``A @ M`` for a tall ``A`` (N x k) and a small ``M``, block by block (one thread)."""
+    if len(A) <= _BLOCK_ROWS:
+        return A @ M
+    out = np.empty((len(A), M.shape[1]), np.result_type(A, M))
+    for s in range(0, len(A), _BLOCK_ROWS):
+        np.matmul(A[s : s + _BLOCK_ROWS], M, out=out[s : s + _BLOCK_ROWS])
+    return out
+
+
 def _normal_equations(J: np.ndarray, w: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    Jw = J * w[:, None]
-    return (Jw.T @ J).astype(np.float64), (Jw.T @ r).astype(np.float64)
+    """``(J^T W J, J^T W r)`` in float64, summed block by block (one thread)."""
+    H = np.zeros((J.shape[1], J.shape[1]))
+    b = np.zeros(J.shape[1])
+    for s in range(0, len(J), _BLOCK_ROWS):
+        Jb = J[s : s + _BLOCK_ROWS]
+        Jw = Jb * w[s : s + _BLOCK_ROWS, None]
+        H += Jw.T @ Jb
+        b += Jw.T @ r[s : s + _BLOCK_ROWS]
+    return H, b
 
 
 def _photometric_equations(
@@ -288,9 +333,9 @@ def _photometric_equations(
         if len(smp) < 6:
             return np.zeros((6, 6)), np.zeros(6)
     rp = smp[:, 0] - intensity
-    rp -= np.float32(np.median(rp))  # global brightness offset
-    s_p = _robust_scale(rp, min_scale)
-    wp = weight * _huber_weights(rp, 1.345 * s_p) / s_p**2
+    rp -= np.float32(median(rp))  # global brightness offset
+    s_p = robust_scale(rp, min_scale)
+    wp = weight * huber_weights(rp, 1.345 * s_p) / s_p**2
     g = np.empty((len(Qp), 3), np.float32)  # d r / d Q
     g[:, 0] = smp[:, 1] * fx * inv_z
     g[:, 1] = smp[:, 2] * fy * inv_z
@@ -315,7 +360,7 @@ def _project(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``points`` moved by ``T`` and projected: the moved points, pixel coordinates (u, v) and
     inverse depths (points behind the camera get 1)."""
-    Q = points @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
+    Q = _tall_times(points, T[:3, :3].T.astype(np.float32)) + T[:3, 3].astype(np.float32)
     z = Q[:, 2]
     inv_z = np.float32(1.0) / np.where(z > 1e-3, z, np.float32(1.0))
     return Q, fx * Q[:, 0] * inv_z + cx, fy * Q[:, 1] * inv_z + cy, inv_z
@@ -371,8 +416,8 @@ def _term_equations(
         if len(geo) < 6:
             return None
         rg = r_g[geo]
-        s_g = _robust_scale(rg, terms.min_geo_scale_m)
-        wg = (_huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
+        s_g = robust_scale(rg, terms.min_geo_scale_m)
+        wg = (huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
         geometric = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
     photometric = None
     if terms.photometric_weight > 0 and src.intensity is not None and tgt.photo is not None:
@@ -402,7 +447,7 @@ def _joint_equations(parts: _Parts, terms: _Terms) -> tuple[np.ndarray, np.ndarr
     if photometric is not None:
         if terms.degenerate_ratio > 0:  # where depth is blind, colour decides alone
             assert z_geo is not None
-            H, b = without_blind_directions(H, b, float(np.median(z_geo)), terms.degenerate_ratio)
+            H, b = without_blind_directions(H, b, median(z_geo), terms.degenerate_ratio)
         H = H + photometric[0]
         b = b + photometric[1]
     # a whisper of damping: directions nothing constrains (sliding along a bare wall) stay put

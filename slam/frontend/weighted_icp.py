@@ -23,9 +23,8 @@ import numpy as np
 
 from slam.camera import DepthNoise
 from slam.frontend.pointcloud import normal_map
+from slam.frontend.robust import median, robust_scale
 from slam.geometry import exp_se3
-
-_MAD = 1.4826
 
 
 def vertex_map(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -176,7 +175,7 @@ def weighted_point_to_plane(
         (ax, ay, az), (mx, my, mz), r, sig = kept
         e = r / sig
         if scale is None:
-            scale = max(_MAD * float(np.median(np.abs(e))), 1e-3)
+            scale = robust_scale(e, 1e-3)
         a = np.abs(e) * f32(1.0 / scale)
         wt = np.where(a <= huber_k, f32(1.0), f32(huber_k) / np.maximum(a, f32(1e-12)))
         wt /= (f32(scale) * sig) ** 2
@@ -196,7 +195,7 @@ def weighted_point_to_plane(
         H,
         len(r) / max(len(src.points), 1),
         float(np.sqrt(np.mean(np.square(r, dtype=np.float64)))),
-        float(np.median(qz_kept)),
+        median(qz_kept),
     )
 
 
