@@ -38,7 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     import slam
     from slam.demo import cache_dir
     from slam.frontend.frame import PreparedFrame
-    from slam.frontend.photometric import RgbdImage, grey, warp_intensity
+    from slam.frontend.photometric import warp_intensity
+    from slam.frontend.rgbd_image import RgbdImage, grey
     from slam.geometry import inv_T
     from slam.mapping.tsdf import TSDFVolume
     from slam.trajectory import read_tum

@@ -136,13 +136,12 @@ class TrackingConfig:
     # colour_step_iterations Gauss-Newton steps. Where depth is weak (a wall filling the view,
     # a corridor) colour holds the frame. 0 = off. Colour's term on the colour_step_textured
     # fraction of the pixels whose intensity changes fastest (1: all; its information is the
-    # image gradient), depth's information on pyramid level colour_step_geometry_level (0:
-    # finest): 0.125 and 1 cost a quarter of all pixels at level 0 (docs/benchmarks.md,
-    # session 28)
+    # image gradient), depth's information on every colour_step_geometry_stride-th row and
+    # column (1 or 2): 0.125 and 2 cost a fifth of all pixels (docs/benchmarks.md, session 28)
     colour_step_weight: float = 0.0
-    colour_step_iterations: int = 3
+    colour_step_iterations: int = 2
     colour_step_textured: float = 0.125
-    colour_step_geometry_level: int = 1
+    colour_step_geometry_stride: int = 4
     # the colour a frame is aligned to against the model: "keyframe", the last keyframes'
     # images, each warped into the model's view by the model's depth and averaged, or "model",
     # the TSDF's own ray-cast colour. A TSDF's colour is smeared (aligned from the true pose to

@@ -66,7 +66,7 @@ def _tracking(t: TrackingConfig) -> list[Check]:
         (t.colour_step_weight >= 0, "tracking.colour_step_weight", t.colour_step_weight, ">= 0"),
         (t.colour_step_iterations >= 1, "tracking.colour_step_iterations", t.colour_step_iterations, ">= 1"),
         (0 < t.colour_step_textured <= 1, "tracking.colour_step_textured", t.colour_step_textured, "in (0, 1]"),
-        (0 <= t.colour_step_geometry_level < len(t.iterations), "tracking.colour_step_geometry_level", t.colour_step_geometry_level, "a pyramid level: 0 to len(tracking.iterations) - 1"),
+        (t.colour_step_geometry_stride >= 1, "tracking.colour_step_geometry_stride", t.colour_step_geometry_stride, ">= 1"),
         (t.photometric_reference in ("keyframe", "model"), "tracking.photometric_reference", t.photometric_reference, '"keyframe" or "model"'),
         (t.photometric_keyframes >= 1, "tracking.photometric_keyframes", t.photometric_keyframes, "at least 1"),
         (t.depth_noise_quadratic >= 0, "tracking.depth_noise_quadratic", t.depth_noise_quadratic, ">= 0"),

@@ -19,8 +19,9 @@ from slam.frontend.frame import PreparedFrame, depth_noise
 from slam.frontend.icp import IcpResult, projective_agreement
 from slam.frontend.keyframe_ransac import KeyframeRansac
 from slam.frontend.model import TrackingModel
-from slam.frontend.photometric import RgbdImage, grey, mean_warped_intensity
+from slam.frontend.photometric import mean_warped_intensity
 from slam.frontend.ransac import RansacResult
+from slam.frontend.rgbd_image import RgbdImage, grey
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import FeatureSet, Keyframe
 from slam.records import TrackingStatus

@@ -6,6 +6,10 @@ depth's estimate as a Gaussian prior (with its point-to-plane information there)
 photometric cost against the previous frame (:func:`colour_equations`, the terms of
 :func:`slam.frontend.photometric.joint_align`). Where depth is weak (along a wall filling the
 view, a corridor) colour moves the frame; where depth is sure its information holds it.
+What it costs is set by where the two terms are evaluated: colour on the most textured pixels
+(its Jacobian is the image gradient; elsewhere it adds little information), depth's
+information on every second row and column (its shape is the scene's; a coarser pyramid
+level would average across depth edges).
 
 How much colour weighs: :class:`ColourAgreement`. Colour is registered to depth on every
 synthetic sequence and nearly so on a real Kinect, but only nearly: on ``tum-fr1-xyz`` a frame's
@@ -34,13 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slam.frontend.photometric import (
-    _MIN_GEO_SCALE_M,
-    _MIN_PHO_SCALE,
-    RgbdImage,
-    _term_equations,
-    _Terms,
-)
+from slam.frontend.photometric import _MIN_GEO_SCALE_M, _MIN_PHO_SCALE, _term_equations, _Terms
+from slam.frontend.rgbd_image import RgbdImage
 from slam.frontend.robust import median
 from slam.frontend.weighted_icp import metric_eigen
 from slam.geometry import exp_se3, inv_T, log_se3
@@ -136,15 +135,18 @@ def colour_equations(
     huber_delta_m: float = 0.05,
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
     textured: float = 1.0,
-    geometry_level: int = 0,
+    geometry_stride: int = 1,
     depth_information: tuple[np.ndarray, float] | None = None,
 ) -> ColourEquations | None:
     """:class:`ColourEquations` of ``source`` against ``target`` at ``T_target_source``; None
     when either has no intensity or the views do not correspond (fewer than 6 points).
     ``colour_poses``: as in :func:`joint_align`. Colour's term on the ``textured`` fraction of
     the source pixels (finest level) whose intensity changes fastest
-    (:meth:`~slam.frontend.photometric.RgbdImage.textured`; 1: all), depth's on pyramid level
-    ``geometry_level``. ``depth_information``: depth's information and median depth, when
+    (:meth:`~slam.frontend.rgbd_image.RgbdImage.textured`; 1: all), depth's on every pixel
+    (``geometry_stride`` 1) or, from the source, every ``geometry_stride``-th row and column of
+    the finest level against the target's pixels of odd row and column
+    (:meth:`~slam.frontend.rgbd_image.RgbdImage.odd_target`).
+    ``depth_information``: depth's information and median depth, when
     known (the Gauss-Newton steps after the first): depth's term is then not evaluated."""
     if source.intensity is None or target.intensity is None:
         return None
@@ -162,7 +164,7 @@ def colour_equations(
         _MIN_PHO_SCALE,
         0.0,
     )
-    both = textured >= 1.0 and geometry_level == 0 and depth_information is None
+    both = textured >= 1.0 and geometry_stride == 1 and depth_information is None
     src = source.source(0) if textured >= 1.0 else source.textured(0, textured)
     parts = _term_equations(
         src, target.target(0, geometry=both), target.K[0], T, terms, T_colour,
@@ -176,14 +178,13 @@ def colour_equations(
     if both:  # one pass over the pixels gives both terms
         assert parts[0] is not None and parts[3] is not None
         return ColourEquations(T, parts[0][0], H_pho, b_pho, median(parts[3]))
-    level = min(geometry_level, len(source.depth) - 1)
     depth_terms = dataclasses.replace(terms, photometric_weight=0.0)
-    geo = _term_equations(
-        source.source(level), target.target(level), target.K[level], T, depth_terms
-    )
+    src = source.source(0, geometry_stride)
+    tgt, K = (target.target(0), target.K[0]) if geometry_stride == 1 else target.odd_target()
+    geo = _term_equations(src, tgt, K, T, depth_terms)
     if geo is None or geo[0] is None:
         return None
-    return ColourEquations(T, geo[0][0], H_pho, b_pho, median(source.source(level).points[:, 2]))
+    return ColourEquations(T, geo[0][0], H_pho, b_pho, median(src.points[:, 2]))
 
 
 def colour_refine(
@@ -236,7 +237,7 @@ def step_with_colour(
     huber_delta_m: float = 0.05,
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
     textured: float = 1.0,
-    geometry_level: int = 0,
+    geometry_stride: int = 1,
 ) -> np.ndarray:
     """A frame's depth estimate ``T_prev_cur`` against the previous frame (``source`` against
     ``target``) refined by :func:`colour_refine` at ``weight`` times the weight colour has
@@ -245,7 +246,7 @@ def step_with_colour(
     frame-to-frame ICP step). Unchanged when the views do not correspond."""
     first = colour_equations(
         source, target, T_prev_cur, max_correspondence_m, huber_delta_m, colour_poses,
-        textured, geometry_level,
+        textured, geometry_stride,
     )  # fmt: skip
     if first is None:
         return T_prev_cur

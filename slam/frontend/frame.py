@@ -19,8 +19,9 @@ from slam.config import TrackingConfig
 from slam.data.base import Frame
 from slam.frontend.features import OrbExtractor
 from slam.frontend.icp import IcpResult, projective_icp
-from slam.frontend.photometric import RgbdImage, grey, joint_align
+from slam.frontend.photometric import joint_align
 from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth
+from slam.frontend.rgbd_image import RgbdImage, grey
 from slam.frontend.weighted_icp import SourcePoints, depth_constraint
 from slam.keyframe import FeatureSet, KeyframeView
 

@@ -31,9 +31,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from slam.camera import scale_intrinsics
 from slam.frontend.icp import IcpResult
-from slam.frontend.pointcloud import depth_pyramid, normal_map
+from slam.frontend.rgbd_image import RgbdImage, _SourceLevel, _TargetLevel
 from slam.frontend.robust import huber_weights, median, robust_scale
 from slam.frontend.weighted_icp import vertex_map, without_blind_directions
 from slam.geometry import exp_se3, inv_T
@@ -41,146 +40,6 @@ from slam.geometry import exp_se3, inv_T
 # floors of the robust scales: depth's in metres, colour's in grey levels (of 1)
 _MIN_GEO_SCALE_M = 5e-4
 _MIN_PHO_SCALE = 2.0 / 255.0
-
-
-def grey(color: np.ndarray, factor: int = 1) -> np.ndarray:
-    """Grey intensity in [0, 1] (float32) of an RGB image (uint8, or float in [0, 1]),
-    downsampled by ``factor`` (a power of 2) with 2x2 box averages (pixel-centre convention)."""
-    c = np.asarray(color)
-    scale = 1.0 / 255.0 if c.dtype == np.uint8 else 1.0
-    g = cv2.cvtColor(c.astype(np.float32), cv2.COLOR_RGB2GRAY) * np.float32(scale)
-    for _ in range(int(np.log2(factor))):
-        g = _half(g)
-    return g
-
-
-def _half(img: np.ndarray) -> np.ndarray:
-    h, w = img.shape[:2]
-    return cv2.resize(img, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-
-
-def intensity_pyramid(intensity: np.ndarray, levels: int) -> list[np.ndarray]:
-    """Finest first; level i has 1/2^i resolution (2x2 box averages)."""
-    pyr = [np.asarray(intensity, np.float32)]
-    for _ in range(levels - 1):
-        pyr.append(_half(pyr[-1]))
-    return pyr
-
-
-@dataclass
-class _SourceLevel:
-    points: np.ndarray  # (N, 3) float32, camera frame
-    intensity: np.ndarray | None  # (N,) float32
-
-
-@dataclass
-class _TargetLevel:
-    shape: tuple[int, int]
-    depth: np.ndarray  # (H * W,) float32, 0 = none
-    vertex: np.ndarray  # (H * W, 3) float32
-    normal: np.ndarray  # (H * W, 3) float32, 0 where unknown
-    photo: np.ndarray | None  # (H, W, 3) float32: intensity, d/du, d/dv
-    has_normal: np.ndarray  # (H * W,) bool: the normal is known
-
-
-def _source_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray, step: int):
-    d = depth[::step, ::step]
-    v, u = np.nonzero(d > 0)
-    z = d[v, u].astype(np.float32)
-    u = u * step
-    v = v * step
-    x = ((u - K[0, 2]) / K[0, 0]).astype(np.float32) * z
-    y = ((v - K[1, 2]) / K[1, 1]).astype(np.float32) * z
-    pts = np.stack([x, y, z], axis=-1)
-    inten = None if intensity is None else intensity[v, u].astype(np.float32)
-    return _SourceLevel(pts, inten)
-
-
-def _target_level(
-    depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray, geometry: bool = True
-) -> _TargetLevel:
-    """A target level; without ``geometry`` its vertices and normals are empty (for the
-    photometric term alone)."""
-    h, w = depth.shape
-    z = depth.astype(np.float32)
-    photo = None
-    if intensity is not None:
-        i = np.asarray(intensity, np.float32)
-        gx = np.zeros_like(i)
-        gy = np.zeros_like(i)
-        gx[:, 1:-1] = 0.5 * (i[:, 2:] - i[:, :-2])
-        gy[1:-1, :] = 0.5 * (i[2:, :] - i[:-2, :])
-        photo = np.ascontiguousarray(np.stack([i, gx, gy], axis=-1))
-    if not geometry:
-        empty = np.zeros((0, 3), np.float32)
-        return _TargetLevel((h, w), z.reshape(-1), empty, empty, photo, np.zeros(0, bool))
-    vertex = vertex_map(z, K)
-    normal = normal_map(vertex, f_px=float(K[0, 0])).reshape(-1, 3)
-    has_normal = np.any(normal != 0, axis=1)
-    return _TargetLevel((h, w), z.reshape(-1), vertex.reshape(-1, 3), normal, photo, has_normal)
-
-
-class RgbdImage:
-    """Depth (and intensity) pyramids of one view, prepared for :func:`joint_align` as a source
-    (``as_source``) and/or a target (``as_target``). Build once per frame; levels are created
-    on first use."""
-
-    def __init__(
-        self,
-        depth_m: np.ndarray | list[np.ndarray],
-        intensity: np.ndarray | list[np.ndarray] | None,
-        K: np.ndarray,
-        levels: int,
-    ) -> None:
-        self.depth = depth_m if isinstance(depth_m, list) else depth_pyramid(depth_m, levels)
-        if intensity is None:
-            self.intensity = None
-        else:
-            self.intensity = (
-                intensity if isinstance(intensity, list) else intensity_pyramid(intensity, levels)
-            )
-        self.K = [scale_intrinsics(K, 2**lv) for lv in range(levels)]
-        self._src: dict[tuple[int, int], _SourceLevel] = {}
-        self._tgt: dict[int, _TargetLevel] = {}
-
-    def source(self, level: int, step: int = 1) -> _SourceLevel:
-        key = (level, step)
-        if key not in self._src:
-            inten = None if self.intensity is None else self.intensity[level]
-            self._src[key] = _source_level(self.depth[level], inten, self.K[level], step)
-        return self._src[key]
-
-    def textured(self, level: int, fraction: float) -> _SourceLevel:
-        """The source's pixels with depth whose intensity changes fastest (central
-        differences), ``fraction`` of them: where the photometric term's information is (its
-        Jacobian is the image gradient)."""
-        key = (level, -int(round(1e6 * fraction)))
-        if key not in self._src:
-            assert self.intensity is not None
-            depth, inten, K = self.depth[level], self.intensity[level], self.K[level]
-            i = np.asarray(inten, np.float32)
-            g2 = np.zeros_like(i)
-            g2[1:-1, 1:-1] = (i[1:-1, 2:] - i[1:-1, :-2]) ** 2 + (i[2:, 1:-1] - i[:-2, 1:-1]) ** 2
-            flat = np.flatnonzero(depth.reshape(-1) > 0)
-            m = int(np.ceil(fraction * len(flat)))
-            if 0 < m < len(flat):
-                flat = flat[np.argpartition(-g2.reshape(-1)[flat], m - 1)[:m]]
-            flat.sort()
-            v, u = np.divmod(flat, depth.shape[1])
-            z = depth[v, u].astype(np.float32)
-            x = ((u - K[0, 2]) / K[0, 0]).astype(np.float32) * z
-            y = ((v - K[1, 2]) / K[1, 1]).astype(np.float32) * z
-            self._src[key] = _SourceLevel(np.stack([x, y, z], axis=-1), i[v, u])
-        return self._src[key]
-
-    def target(self, level: int, geometry: bool = True) -> _TargetLevel:
-        """The view as a target at ``level``; without ``geometry`` (for the photometric term
-        alone) its vertices and normals may be left out."""
-        key = level if geometry or level in self._tgt else -1 - level
-        if key not in self._tgt:
-            inten = None if self.intensity is None else self.intensity[level]
-            self._tgt[key] = _target_level(self.depth[level], inten, self.K[level], geometry)
-        return self._tgt[key]
 
 
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

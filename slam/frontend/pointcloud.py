@@ -23,34 +23,69 @@ def normal_map(
     """
     x, y, z = (np.asarray(vertex[..., k], np.float32) for k in range(3))
     h, w = z.shape
-    # central differences on the interior (borders stay invalid)
-    dxx, dxy, dxz = (c[1:-1, 2:] - c[1:-1, :-2] for c in (x, y, z))
-    dyx, dyy, dyz = (c[2:, 1:-1] - c[:-2, 1:-1] for c in (x, y, z))
+    n = np.zeros((h, w, 3), np.float32)
+    n[1:-1, 1:-1] = _central_normals((x, y, z), slice(1, -1), 1, max_depth_jump_m, f_px)
+    return n
+
+
+def odd_normal_map(
+    vertex: np.ndarray, max_depth_jump_m: float = 0.05, f_px: float | None = None
+) -> np.ndarray:
+    """:func:`normal_map` at the pixels of odd row and column (1, 3, ...; the last row and
+    column excluded when even counts leave them without a neighbour): ((H - 1) // 2, (W - 1)
+    // 2, 3), from the same central differences of the full-resolution vertex map, at a
+    quarter of the cost."""
+    x, y, z = (np.asarray(vertex[..., k], np.float32) for k in range(3))
+    h, w = z.shape
+    rows, cols = slice(1, h - 1 - (h % 2 == 0), 2), slice(1, w - 1 - (w % 2 == 0), 2)
+    return _central_normals((x, y, z), (rows, cols), 2, max_depth_jump_m, f_px)
+
+
+def _central_normals(
+    xyz: tuple[np.ndarray, np.ndarray, np.ndarray],
+    centres: slice | tuple[slice, slice],
+    step: int,
+    max_depth_jump_m: float,
+    f_px: float | None,
+) -> np.ndarray:
+    """Normals (n, m, 3) at the ``centres`` (row and column slices of step ``step``, each
+    pixel with all four neighbours) from central differences over one pixel each side."""
+    rows, cols = centres if isinstance(centres, tuple) else (centres, centres)
+
+    def at(c: np.ndarray, dr: int, dc: int) -> np.ndarray:
+        r = slice(rows.start + dr, (rows.stop or 0) + dr or None, step)
+        k = slice(cols.start + dc, (cols.stop or 0) + dc or None, step)
+        return c[r, k]
+
+    x, y, z = xyz
+    dxx, dxy, dxz = (at(c, 0, 1) - at(c, 0, -1) for c in (x, y, z))
+    dyx, dyy, dyz = (at(c, 1, 0) - at(c, -1, 0) for c in (x, y, z))
     cx = dxy * dyz - dxz * dyy
     cy = dxz * dyx - dxx * dyz
     cz = dxx * dyy - dxy * dyx
     norm = np.sqrt(cx * cx + cy * cy + cz * cz)
+    zc = at(z, 0, 0)
     jump = np.float32(2 * max_depth_jump_m)
     if f_px is not None:
         slope = np.float32(2 * np.tan(np.radians(MAX_INCIDENCE_DEG)) / f_px)
-        jump = np.maximum(jump, slope * z[1:-1, 1:-1])
+        jump = np.maximum(jump, slope * zc)
     valid = (
-        (z[1:-1, 1:-1] > 0)
+        (zc > 0)
         & (norm > 1e-12)
-        & (z[1:-1, 2:] > 0)
-        & (z[1:-1, :-2] > 0)
-        & (z[2:, 1:-1] > 0)
-        & (z[:-2, 1:-1] > 0)
+        & (at(z, 0, 1) > 0)
+        & (at(z, 0, -1) > 0)
+        & (at(z, 1, 0) > 0)
+        & (at(z, -1, 0) > 0)
         & (np.abs(dxz) < jump)
         & (np.abs(dyz) < jump)
     )
     # orient towards the camera (the viewing ray is +vertex): flip where n . vertex > 0
-    facing = cx * x[1:-1, 1:-1] + cy * y[1:-1, 1:-1] + cz * z[1:-1, 1:-1]
+    facing = cx * at(x, 0, 0) + cy * at(y, 0, 0) + cz * zc
     inv = np.where(valid, np.where(facing > 0, -1.0, 1.0) / np.maximum(norm, 1e-12), 0.0)
-    n = np.zeros((h, w, 3), np.float32)
-    n[1:-1, 1:-1, 0] = cx * inv
-    n[1:-1, 1:-1, 1] = cy * inv
-    n[1:-1, 1:-1, 2] = cz * inv
+    n = np.empty((*zc.shape, 3), np.float32)
+    n[..., 0] = cx * inv
+    n[..., 1] = cy * inv
+    n[..., 2] = cz * inv
     return n
 
 

@@ -389,7 +389,7 @@ class Tracker:
             (depth_step, att.f2f), cfg.colour_step_weight, cfg.colour_step_iterations,
             cfg.max_correspondence_m, cfg.huber_delta_m,
             colour_poses=(att.frame.T_depth_colour, prev.T_depth_colour),
-            textured=cfg.colour_step_textured, geometry_level=cfg.colour_step_geometry_level,
+            textured=cfg.colour_step_textured, geometry_stride=cfg.colour_step_geometry_stride,
         )  # fmt: skip
         if refined is not T_prev_cur:
             att.T_world_cam = att.T_world_prev @ refined

@@ -20,8 +20,8 @@ import numpy as np
 from slam.errors import SlamError
 from slam.frontend.colour_step import ColourAgreement
 from slam.frontend.frame import PreparedFrame
-from slam.frontend.photometric import RgbdImage
 from slam.frontend.pointcloud import depth_pyramid
+from slam.frontend.rgbd_image import RgbdImage
 from slam.keyframe import FeatureSet, Keyframe
 
 __all__ = ["TrackerState"]

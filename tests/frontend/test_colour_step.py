@@ -73,3 +73,26 @@ def test_colour_refine_follows_colour_where_depth_is_blind_and_weighs_both_elsew
         assert np.abs(offsets[weight][:2]).max() < 5e-4, offsets  # along the wall: the truth
     assert offsets[1e-3][2] == pytest.approx(0.003, abs=1e-4)  # depth's estimate holds
     assert 0.0 < offsets[1.0][2] < 0.0025  # weighed against colour
+
+
+def test_colour_refine_on_the_textured_pixels_with_coarse_depth_information():
+    """The default settings of the step (``tracking.colour_step_textured`` 0.125,
+    ``colour_step_geometry_stride`` 2): colour on the eighth of the pixels with the strongest
+    gradients, depth's information on every second row and column. Along the wall the frame still ends on
+    the truth; at a thousandth of depth's weight depth's estimate along the normal holds."""
+    motion = exp_se3(np.array([0.0, 0.0, np.radians(1.0), 0.02, -0.01, 0.0]))
+    _, source, target = wall_views(motion)
+    start = exp_se3(np.array([0.0, 0.0, 0.0, 0.008, 0.0, 0.003])) @ motion
+    first = colour_equations(source, target, start, textured=0.125, geometry_stride=2)
+    assert first is not None and first.depth_m == pytest.approx(2.0, abs=0.05)
+    full = colour_equations(source, target, start)
+    assert full is not None
+    # depth's information has the same shape on a quarter of the points
+    shape = first.H_geo / np.trace(first.H_geo)
+    np.testing.assert_allclose(shape, full.H_geo / np.trace(full.H_geo), atol=0.02)
+    for weight in (1e-3, 1.0):
+        T = colour_refine(source, target, first, weight, 3, textured=0.125)
+        offset = (T @ inv_T(motion))[:3, 3]
+        assert np.abs(offset[:2]).max() < 5e-4, offset
+        if weight == 1e-3:
+            assert offset[2] == pytest.approx(0.003, abs=1e-4)

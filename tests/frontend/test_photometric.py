@@ -1,12 +1,7 @@
 import numpy as np
 
-from slam.frontend.photometric import (
-    RgbdImage,
-    grey,
-    joint_align,
-    mean_warped_intensity,
-    warp_intensity,
-)
+from slam.frontend.photometric import joint_align, mean_warped_intensity, warp_intensity
+from slam.frontend.rgbd_image import RgbdImage, grey
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from tests.conftest import look_at
 
