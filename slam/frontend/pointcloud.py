@@ -24,7 +24,7 @@ def normal_map(
     x, y, z = (np.asarray(vertex[..., k], np.float32) for k in range(3))
     h, w = z.shape
     n = np.zeros((h, w, 3), np.float32)
-    n[1:-1, 1:-1] = _central_normals((x, y, z), slice(1, -1), 1, max_depth_jump_m, f_px)
+    _central_normals((x, y, z), slice(1, -1), 1, max_depth_jump_m, f_px, out=n[1:-1, 1:-1])
     return n
 
 
@@ -47,9 +47,11 @@ def _central_normals(
     step: int,
     max_depth_jump_m: float,
     f_px: float | None,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Normals (n, m, 3) at the ``centres`` (row and column slices of step ``step``, each
-    pixel with all four neighbours) from central differences over one pixel each side."""
+    pixel with all four neighbours) from central differences over one pixel each side, into
+    ``out`` when given."""
     rows, cols = centres if isinstance(centres, tuple) else (centres, centres)
 
     def at(c: np.ndarray, dr: int, dc: int) -> np.ndarray:
@@ -82,7 +84,7 @@ def _central_normals(
     # orient towards the camera (the viewing ray is +vertex): flip where n . vertex > 0
     facing = cx * at(x, 0, 0) + cy * at(y, 0, 0) + cz * zc
     inv = np.where(valid, np.where(facing > 0, -1.0, 1.0) / np.maximum(norm, 1e-12), 0.0)
-    n = np.empty((*zc.shape, 3), np.float32)
+    n = np.empty((*zc.shape, 3), np.float32) if out is None else out
     n[..., 0] = cx * inv
     n[..., 1] = cy * inv
     n[..., 2] = cz * inv
