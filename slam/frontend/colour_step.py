@@ -47,6 +47,7 @@ from slam.geometry import exp_se3, inv_T, log_se3
 __all__ = [
     "ColourAgreement",
     "ColourEquations",
+    "StepSettings",
     "colour_equations",
     "colour_refine",
     "step_with_colour",
@@ -127,27 +128,35 @@ class ColourEquations:
         return -np.linalg.solve(H, self.b_pho)
 
 
+@dataclass(frozen=True)
+class StepSettings:
+    """How the colour step evaluates its two terms (``tracking.colour_step_*``, the ICP's
+    gates): the geometric correspondences' gate and Huber delta (m); colour's term on the
+    ``textured`` fraction of the source pixels (finest level) whose intensity changes fastest
+    (:meth:`~slam.frontend.rgbd_image.RgbdImage.textured`; 1: all); depth's on every pixel
+    (``geometry_stride`` 1) or, from the source, on every ``geometry_stride``-th row and
+    column of the finest level against the target's pixels of odd row and column
+    (:meth:`~slam.frontend.rgbd_image.RgbdImage.odd_target`)."""
+
+    max_correspondence_m: float = 0.07
+    huber_delta_m: float = 0.05
+    textured: float = 1.0
+    geometry_stride: int = 1
+
+
 def colour_equations(
     source: RgbdImage,
     target: RgbdImage,
     T_target_source: np.ndarray,
-    max_correspondence_m: float = 0.07,
-    huber_delta_m: float = 0.05,
+    settings: StepSettings = StepSettings(),
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
-    textured: float = 1.0,
-    geometry_stride: int = 1,
     depth_information: tuple[np.ndarray, float] | None = None,
 ) -> ColourEquations | None:
-    """:class:`ColourEquations` of ``source`` against ``target`` at ``T_target_source``; None
-    when either has no intensity or the views do not correspond (fewer than 6 points).
-    ``colour_poses``: as in :func:`joint_align`. Colour's term on the ``textured`` fraction of
-    the source pixels (finest level) whose intensity changes fastest
-    (:meth:`~slam.frontend.rgbd_image.RgbdImage.textured`; 1: all), depth's on every pixel
-    (``geometry_stride`` 1) or, from the source, every ``geometry_stride``-th row and column of
-    the finest level against the target's pixels of odd row and column
-    (:meth:`~slam.frontend.rgbd_image.RgbdImage.odd_target`).
-    ``depth_information``: depth's information and median depth, when
-    known (the Gauss-Newton steps after the first): depth's term is then not evaluated."""
+    """:class:`ColourEquations` of ``source`` against ``target`` at ``T_target_source``, the
+    terms evaluated as ``settings`` say; None when either has no intensity or the views do not
+    correspond (fewer than 6 points). ``colour_poses``: as in :func:`joint_align`.
+    ``depth_information``: depth's information and median depth, when known (the Gauss-Newton
+    steps after the first): depth's term is then not evaluated."""
     if source.intensity is None or target.intensity is None:
         return None
     T = np.asarray(T_target_source, float)
@@ -157,14 +166,15 @@ def colour_equations(
         T_colour = T if C_src is None else T @ C_src
         T_colour = T_colour if C_tgt is None else inv_T(C_tgt) @ T_colour
     terms = _Terms(
-        np.float32(max_correspondence_m),
-        huber_delta_m,
+        np.float32(settings.max_correspondence_m),
+        settings.huber_delta_m,
         _MIN_GEO_SCALE_M,
         1.0,
         _MIN_PHO_SCALE,
         0.0,
     )
-    both = textured >= 1.0 and geometry_stride == 1 and depth_information is None
+    textured, stride = settings.textured, settings.geometry_stride
+    both = textured >= 1.0 and stride == 1 and depth_information is None
     src = source.source(0) if textured >= 1.0 else source.textured(0, textured)
     parts = _term_equations(
         src, target.target(0, geometry=both), target.K[0], T, terms, T_colour,
@@ -179,8 +189,8 @@ def colour_equations(
         assert parts[0] is not None and parts[3] is not None
         return ColourEquations(T, parts[0][0], H_pho, b_pho, median(parts[3]))
     depth_terms = dataclasses.replace(terms, photometric_weight=0.0)
-    src = source.source(0, geometry_stride)
-    tgt, K = (target.target(0), target.K[0]) if geometry_stride == 1 else target.odd_target()
+    src = source.source(0, stride)
+    tgt, K = (target.target(0), target.K[0]) if stride == 1 else target.odd_target()
     geo = _term_equations(src, tgt, K, T, depth_terms)
     if geo is None or geo[0] is None:
         return None
@@ -193,10 +203,8 @@ def colour_refine(
     first: ColourEquations,
     photometric_weight: float,
     iterations: int,
-    max_correspondence_m: float = 0.07,
-    huber_delta_m: float = 0.05,
+    settings: StepSettings = StepSettings(),
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
-    textured: float = 1.0,
 ) -> np.ndarray:
     """``T_target_source`` refined from ``first.T_target_source``, a pose whose depth alignment
     is trusted (depth's optimum against the model), by Gauss-Newton on
@@ -209,10 +217,8 @@ def colour_refine(
     moved = np.zeros(6)  # the twist from the depth optimum, summed over the steps
     for k in range(iterations if photometric_weight > 0 else 0):
         if k > 0:
-            eq = colour_equations(
-                source, target, T, max_correspondence_m, huber_delta_m, colour_poses, textured,
-                depth_information=(first.H_geo, first.depth_m),  # the prior's: not evaluated
-            )  # fmt: skip
+            prior = (first.H_geo, first.depth_m)  # depth's information: not evaluated again
+            eq = colour_equations(source, target, T, settings, colour_poses, prior)
             if eq is None:
                 break
         H = first.H_geo + photometric_weight * eq.H_pho
@@ -233,28 +239,20 @@ def step_with_colour(
     measured: tuple[np.ndarray | None, np.ndarray | None],
     weight: float,
     iterations: int,
-    max_correspondence_m: float = 0.07,
-    huber_delta_m: float = 0.05,
+    settings: StepSettings = StepSettings(),
     colour_poses: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
-    textured: float = 1.0,
-    geometry_stride: int = 1,
 ) -> np.ndarray:
     """A frame's depth estimate ``T_prev_cur`` against the previous frame (``source`` against
     ``target``) refined by :func:`colour_refine` at ``weight`` times the weight colour has
     earned (``agreement``, first updated with this frame when ``measured`` holds its
     frame-to-model depth step, relative to the previous frame's depth estimate, and its
     frame-to-frame ICP step). Unchanged when the views do not correspond."""
-    first = colour_equations(
-        source, target, T_prev_cur, max_correspondence_m, huber_delta_m, colour_poses,
-        textured, geometry_stride,
-    )  # fmt: skip
+    first = colour_equations(source, target, T_prev_cur, settings, colour_poses)
     if first is None:
         return T_prev_cur
     depth_step, f2f_step = measured
     if depth_step is not None and f2f_step is not None:
         colour_alone = exp_se3(first.colour_alone()) @ first.T_target_source
         agreement.add(first.H_geo, first.H_pho, first.depth_m, (colour_alone, depth_step, f2f_step))
-    return colour_refine(
-        source, target, first, weight * agreement.weight(), iterations, max_correspondence_m,
-        huber_delta_m, colour_poses, textured,
-    )  # fmt: skip
+    weight = weight * agreement.weight()
+    return colour_refine(source, target, first, weight, iterations, settings, colour_poses)

@@ -54,10 +54,12 @@ def _central_normals(
     ``out`` when given."""
     rows, cols = centres if isinstance(centres, tuple) else (centres, centres)
 
+    def shifted(s: slice, d: int) -> slice:  # the centres' slice moved by d pixels
+        stop = s.stop + d  # (a stop of 0 after a negative stop means "to the end")
+        return slice(s.start + d, None if stop == 0 else stop, step)
+
     def at(c: np.ndarray, dr: int, dc: int) -> np.ndarray:
-        r = slice(rows.start + dr, (rows.stop or 0) + dr or None, step)
-        k = slice(cols.start + dc, (cols.stop or 0) + dc or None, step)
-        return c[r, k]
+        return c[shifted(rows, dr), shifted(cols, dc)]
 
     x, y, z = xyz
     dxx, dxy, dxz = (at(c, 0, 1) - at(c, 0, -1) for c in (x, y, z))

@@ -56,17 +56,19 @@ class _TargetLevel:
     has_normal: np.ndarray  # (H * W,) bool: the normal is known
 
 
-def _source_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray, step: int):
-    d = depth[::step, ::step]
-    v, u = np.nonzero(d > 0)
-    z = d[v, u].astype(np.float32)
-    u = u * step
-    v = v * step
+def _pixels(depth: np.ndarray, K: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(N, 3) float32 camera-frame points of the pixels (``v``, ``u``) of a depth image."""
+    z = depth[v, u].astype(np.float32)
     x = ((u - K[0, 2]) / K[0, 0]).astype(np.float32) * z
     y = ((v - K[1, 2]) / K[1, 1]).astype(np.float32) * z
-    pts = np.stack([x, y, z], axis=-1)
+    return np.stack([x, y, z], axis=-1)
+
+
+def _source_level(depth: np.ndarray, intensity: np.ndarray | None, K: np.ndarray, step: int):
+    v, u = np.nonzero(depth[::step, ::step] > 0)
+    v, u = v * step, u * step
     inten = None if intensity is None else intensity[v, u].astype(np.float32)
-    return _SourceLevel(pts, inten)
+    return _SourceLevel(_pixels(depth, K, v, u), inten)
 
 
 def _photo(intensity: np.ndarray) -> np.ndarray:
@@ -116,10 +118,12 @@ class RgbdImage:
                 intensity if isinstance(intensity, list) else intensity_pyramid(intensity, levels)
             )
         self.K = [scale_intrinsics(K, 2**lv) for lv in range(levels)]
-        self._src: dict[tuple[int, int], _SourceLevel] = {}
+        self._src: dict[tuple[int, int], _SourceLevel] = {}  # (level, step)
+        self._textured: dict[tuple[int, float], _SourceLevel] = {}  # (level, fraction)
         self._tgt: dict[int, _TargetLevel] = {}
+        self._photo_tgt: dict[int, _TargetLevel] = {}  # without vertices and normals
         self._photo: dict[int, np.ndarray] = {}
-        self._odd: dict[str, tuple[_TargetLevel, np.ndarray]] = {}
+        self._odd: tuple[_TargetLevel, np.ndarray] | None = None
 
     def photo(self, level: int) -> np.ndarray | None:
         """:func:`_photo` of the intensity at ``level`` (None without intensity)."""
@@ -140,11 +144,11 @@ class RgbdImage:
         """The source's pixels with depth whose intensity changes fastest (central
         differences), ``fraction`` of them: where the photometric term's information is (its
         Jacobian is the image gradient)."""
-        key = (level, -int(round(1e6 * fraction)))
-        if key not in self._src:
+        key = (level, fraction)
+        if key not in self._textured:
             photo = self.photo(level)
             assert photo is not None
-            depth, K = self.depth[level], self.K[level]
+            depth = self.depth[level]
             g2 = photo[..., 1] ** 2 + photo[..., 2] ** 2
             g2[depth <= 0] = -1.0
             flat = g2.reshape(-1)
@@ -160,18 +164,16 @@ class RgbdImage:
                     pick = np.linspace(0, len(tie) - 1, m - len(chosen)).astype(np.int64)
                     chosen = np.sort(np.concatenate([chosen, tie[pick]]))
             v, u = np.divmod(chosen, depth.shape[1])
-            z = depth[v, u].astype(np.float32)
-            x = ((u - K[0, 2]) / K[0, 0]).astype(np.float32) * z
-            y = ((v - K[1, 2]) / K[1, 1]).astype(np.float32) * z
-            self._src[key] = _SourceLevel(np.stack([x, y, z], axis=-1), photo[v, u, 0])
-        return self._src[key]
+            points = _pixels(depth, self.K[level], v, u)
+            self._textured[key] = _SourceLevel(points, photo[v, u, 0])
+        return self._textured[key]
 
     def odd_target(self) -> tuple[_TargetLevel, np.ndarray]:
         """The finest level's pixels of odd row and column as a target (no intensity) and the
         intrinsics of that grid: a quarter of the pixels, each with its own depth and the
         normal of the full-resolution central differences (:func:`odd_normal_map`), unlike a
         pyramid level, whose averages across depth edges are surfaces no camera saw."""
-        if "odd" not in self._odd:
+        if self._odd is None:
             depth, K = self.depth[0], self.K[0]
             vertex = vertex_map(depth, K)
             normal = odd_normal_map(vertex, f_px=float(K[0, 0]))
@@ -183,14 +185,19 @@ class RgbdImage:
             level = _TargetLevel(
                 (h, w), np.ascontiguousarray(v[:, 2]), v, n, None, np.any(n != 0, axis=1)
             )
-            self._odd["odd"] = (level, K_odd)
-        return self._odd["odd"]
+            self._odd = (level, K_odd)
+        return self._odd
 
     def target(self, level: int, geometry: bool = True) -> _TargetLevel:
         """The view as a target at ``level``; without ``geometry`` (for the photometric term
         alone) its vertices and normals may be left out."""
-        key = level if geometry or level in self._tgt else -1 - level
-        if key not in self._tgt:
-            photo = self.photo(level)
-            self._tgt[key] = _target_level(self.depth[level], photo, self.K[level], geometry)
-        return self._tgt[key]
+        if not geometry and level not in self._tgt:
+            if level not in self._photo_tgt:
+                photo = self.photo(level)
+                self._photo_tgt[level] = _target_level(
+                    self.depth[level], photo, self.K[level], False
+                )
+            return self._photo_tgt[level]
+        if level not in self._tgt:
+            self._tgt[level] = _target_level(self.depth[level], self.photo(level), self.K[level])
+        return self._tgt[level]

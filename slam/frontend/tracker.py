@@ -42,7 +42,7 @@ from slam.config import TrackingConfig
 from slam.data.base import Frame
 from slam.errors import ConfigError, TrackingError
 from slam.frontend.alignment import Attempt, align_from, align_to_model, joint_weight
-from slam.frontend.colour_step import step_with_colour
+from slam.frontend.colour_step import StepSettings, step_with_colour
 from slam.frontend.features import OrbExtractor
 from slam.frontend.frame import PreparedFrame, icp_depth_range
 from slam.frontend.keyframe_ransac import KeyframeRansac
@@ -384,12 +384,14 @@ class Tracker:
         if st.T_world_prev_depth is not None:
             depth_step = inv_T(st.T_world_prev_depth) @ att.T_world_cam
         T_prev_cur = inv_T(att.T_world_prev) @ att.T_world_cam
+        settings = StepSettings(
+            cfg.max_correspondence_m, cfg.huber_delta_m,
+            cfg.colour_step_textured, cfg.colour_step_geometry_stride,
+        )  # fmt: skip
         refined = step_with_colour(
             source, target, T_prev_cur, st.colour_agreement,
             (depth_step, att.f2f), cfg.colour_step_weight, cfg.colour_step_iterations,
-            cfg.max_correspondence_m, cfg.huber_delta_m,
-            colour_poses=(att.frame.T_depth_colour, prev.T_depth_colour),
-            textured=cfg.colour_step_textured, geometry_stride=cfg.colour_step_geometry_stride,
+            settings, (att.frame.T_depth_colour, prev.T_depth_colour),
         )  # fmt: skip
         if refined is not T_prev_cur:
             att.T_world_cam = att.T_world_prev @ refined

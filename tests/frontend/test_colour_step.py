@@ -1,7 +1,13 @@
 import numpy as np
 import pytest
 
-from slam.frontend.colour_step import WINDOW, ColourAgreement, colour_equations, colour_refine
+from slam.frontend.colour_step import (
+    WINDOW,
+    ColourAgreement,
+    StepSettings,
+    colour_equations,
+    colour_refine,
+)
 from slam.geometry import exp_se3, inv_T
 from tests.frontend.test_photometric import wall_views
 
@@ -83,7 +89,8 @@ def test_colour_refine_on_the_textured_pixels_with_coarse_depth_information():
     motion = exp_se3(np.array([0.0, 0.0, np.radians(1.0), 0.02, -0.01, 0.0]))
     _, source, target = wall_views(motion)
     start = exp_se3(np.array([0.0, 0.0, 0.0, 0.008, 0.0, 0.003])) @ motion
-    first = colour_equations(source, target, start, textured=0.125, geometry_stride=2)
+    cheap = StepSettings(textured=0.125, geometry_stride=2)
+    first = colour_equations(source, target, start, cheap)
     assert first is not None and first.depth_m == pytest.approx(2.0, abs=0.05)
     full = colour_equations(source, target, start)
     assert full is not None
@@ -91,7 +98,7 @@ def test_colour_refine_on_the_textured_pixels_with_coarse_depth_information():
     shape = first.H_geo / np.trace(first.H_geo)
     np.testing.assert_allclose(shape, full.H_geo / np.trace(full.H_geo), atol=0.02)
     for weight in (1e-3, 1.0):
-        T = colour_refine(source, target, first, weight, 3, textured=0.125)
+        T = colour_refine(source, target, first, weight, 3, cheap)
         offset = (T @ inv_T(motion))[:3, 3]
         assert np.abs(offset[:2]).max() < 5e-4, offset
         if weight == 1e-3:
