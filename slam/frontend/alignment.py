@@ -17,7 +17,7 @@ import numpy as np
 from slam.config import TrackingConfig
 from slam.frontend.frame import PreparedFrame, depth_noise
 from slam.frontend.icp import IcpResult, projective_agreement
-from slam.frontend.keyframe_ransac import KeyframeRansac
+from slam.frontend.keyframe_ransac import FeatureEvidence, KeyframeRansac
 from slam.frontend.model import TrackingModel
 from slam.frontend.photometric import mean_warped_intensity
 from slam.frontend.ransac import RansacResult
@@ -104,19 +104,23 @@ class Attempt:
         return g
 
     def hypotheses(
-        self, matcher: KeyframeRansac, candidates: list[Keyframe]
+        self,
+        matcher: KeyframeRansac,
+        candidates: list[Keyframe],
+        evidence: FeatureEvidence | None = None,
     ) -> list[tuple[str, np.ndarray]]:
         """Alternative guesses of ``T_prev_cur`` (with the path each reports): no motion,
         constant velocity, and the RANSAC pose with the most inliers against the candidates
         (the previous frame and the recent keyframes). Features extracted here are not kept
         for the attempt (so whether the frame leaves its features for the next one depends
-        only on the seed, the verification and the keyframe decision)."""
+        only on the seed, the verification and the keyframe decision). ``evidence``: the
+        features' matches against the candidates, when already made."""
         out = [("icp", np.eye(4)), ("icp", self.velocity)]
         feats = self.feats
         if feats is None and self.frame.has_color:
             feats = self.frame.features
         if feats is not None and len(feats) > 0:
-            g = matcher.best_motion(feats, candidates, self.T_world_prev)
+            g = matcher.best_motion(feats, candidates, self.T_world_prev, evidence)
             if g is not None:
                 out.append(("ransac+icp", g))
         return out

@@ -26,12 +26,15 @@ class KeyframeRansac:
         self.cfg = cfg
         self.rng = rng
 
-    def to_keyframe(self, feats: FeatureSet, kf: Keyframe) -> tuple[RansacResult, int]:
+    def to_keyframe(
+        self, feats: FeatureSet, kf: Keyframe, matches: np.ndarray | None = None
+    ) -> tuple[RansacResult, int]:
         """RANSAC pose of the current camera in the keyframe's frame (``T_kf_cur``) and the
-        number of descriptor matches it started from. Too few matches: a failed result, and
-        no random draw."""
+        number of descriptor matches it started from (``matches``, when already made). Too
+        few matches: a failed result, and no random draw."""
         r = self.cfg
-        matches = match_descriptors(feats.descriptors, kf.features.descriptors, r.ratio)
+        if matches is None:
+            matches = match_descriptors(feats.descriptors, kf.features.descriptors, r.ratio)
         if len(matches) < r.min_inliers:
             failed = RansacResult(np.eye(4), np.zeros(len(matches), bool), 0, np.inf, False)
             return failed, len(matches)
@@ -63,14 +66,19 @@ class KeyframeRansac:
         return None, best, n_best
 
     def best_motion(
-        self, feats: FeatureSet, candidates: list[Keyframe], T_world_prev: np.ndarray
+        self,
+        feats: FeatureSet,
+        candidates: list[Keyframe],
+        T_world_prev: np.ndarray,
+        evidence: FeatureEvidence | None = None,
     ) -> np.ndarray | None:
         """``T_prev_cur`` (motion from the previous pose ``T_world_prev``) of the successful
         RANSAC with the most inliers over all candidates, None when none succeeds. Every
-        candidate is tried, unlike a seed, which stops at the first success."""
+        candidate is tried, unlike a seed, which stops at the first success. ``evidence``:
+        the same features' matches against the same candidates, when already made."""
         best: tuple[int, np.ndarray] | None = None
-        for kf in candidates:
-            res, _ = self.to_keyframe(feats, kf)
+        for i, kf in enumerate(candidates):
+            res, _ = self.to_keyframe(feats, kf, None if evidence is None else evidence.matches[i])
             if res.success and (best is None or res.n_inliers > best[0]):
                 best = (res.n_inliers, inv_T(T_world_prev) @ kf.T_world_cam @ res.T)
         return None if best is None else best[1]
@@ -81,19 +89,40 @@ class KeyframeRansac:
         """How many ORB matches between the frame and a candidate agree with the pose (3D
         points within the RANSAC threshold): independent evidence for a pose found by ICP.
         The best over the candidates; no random draw."""
+        return self.evidence(feats, candidates).support(T_world_cam)
+
+    def evidence(self, feats: FeatureSet | None, candidates: list[Keyframe]) -> FeatureEvidence:
+        """The frame's matches against the candidates, made once, to weigh several poses."""
+        return FeatureEvidence(self.cfg, feats, candidates)
+
+
+class FeatureEvidence:
+    """A frame's ORB matches against candidate keyframes (their 3D points in each camera),
+    matched once: :meth:`support` counts the matches a pose explains."""
+
+    def __init__(
+        self, cfg: RansacConfig, feats: FeatureSet | None, candidates: list[Keyframe]
+    ) -> None:
+        self.threshold_m = cfg.inlier_threshold_m
+        #: the matches (frame index, keyframe index) against each candidate, in order
+        self.matches: list[np.ndarray] = []
+        # (T_world_kf, the frame's matched points, the keyframe's), per candidate with enough
+        self.pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         if feats is None or len(feats) == 0:
-            return 0
-        r = self.cfg
-        best = 0
+            return
         for kf in candidates:
-            m = match_descriptors(feats.descriptors, kf.features.descriptors, r.ratio)
-            if len(m) < r.min_inliers:
-                continue
-            T_kf_cur = inv_T(kf.T_world_cam) @ T_world_cam
-            d = (
-                transform_points(T_kf_cur, feats.points_cam[m[:, 0]])
-                - kf.features.points_cam[m[:, 1]]
-            )
-            agree = int(np.count_nonzero(np.linalg.norm(d, axis=1) < r.inlier_threshold_m))
-            best = max(best, agree)
+            m = match_descriptors(feats.descriptors, kf.features.descriptors, cfg.ratio)
+            self.matches.append(m)
+            if len(m) >= cfg.min_inliers:
+                self.pairs.append(
+                    (kf.T_world_cam, feats.points_cam[m[:, 0]], kf.features.points_cam[m[:, 1]])
+                )
+
+    def support(self, T_world_cam: np.ndarray) -> int:
+        """How many matches agree with the pose (3D points within the RANSAC threshold), the
+        best over the candidates."""
+        best = 0
+        for T_world_kf, cur, ref in self.pairs:
+            d = transform_points(inv_T(T_world_kf) @ T_world_cam, cur) - ref
+            best = max(best, int(np.count_nonzero(np.linalg.norm(d, axis=1) < self.threshold_m)))
         return best

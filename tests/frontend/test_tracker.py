@@ -257,6 +257,31 @@ def test_alternatives_recover_from_a_wrong_prediction(world, model):
     assert len(att.tried) >= 2 and att.overlap > 0.6
 
 
+def test_alternatives_do_not_keep_a_pose_the_features_contradict(world, model, monkeypatch):
+    # a fast pan over a wall: a hypothesis that lags behind the motion stays on what is mapped
+    # and overlaps the model better than the true pose; the frame's ORB matches tell them apart
+    tracker = _tracker_at(world, 9)
+    tracker.state.velocity = _motion(0.25, 20.0)  # large: the alternatives are tried
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    att.keep(world.poses[10], IcpResult(np.eye(4), 0.6, 0.001), 0.5)
+    att.ok = True
+
+    def hypothesis_at(offset_m):
+        T = world.poses[10] @ _motion(offset_m, 0.0)
+        return lambda *args, **kw: (T, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+
+    evidence = tracker.ransac.evidence(att.frame.features, tracker._candidates())
+    assert evidence.support(world.poses[10]) >= 20
+    assert evidence.support(world.poses[10] @ _motion(0.15, 0.0)) == 0
+    monkeypatch.setattr("slam.frontend.tracker.align_from", hypothesis_at(0.15))
+    tracker.alternatives(att, model)
+    assert att.overlap == 0.5 and _errors(att.T_world_cam, world.poses[10])[0] < 1e-9
+    # a hypothesis the features agree with (2 mm off: within their 3 cm) wins on overlap
+    monkeypatch.setattr("slam.frontend.tracker.align_from", hypothesis_at(0.002))
+    tracker.alternatives(att, model)
+    assert att.overlap == 0.9 and _errors(att.T_world_cam, world.poses[10])[0] > 1e-3
+
+
 def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(world, model, caplog):
     tracker = _tracker_at(world, 9)
     p = tracker.prepare(world.frame(10))
