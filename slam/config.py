@@ -128,6 +128,11 @@ class TrackingConfig:
     # weak direction by the model's own sub-millimetre bias times about the ratio (wall rows:
     # 11 mm a frame at ratios 22-27; benchmarks/self_render_bias.py)
     photometric_ratio: float = 20.0
+    # opt-in: a frame-to-model alignment depth alone would make is made with colour too where
+    # the part of the frame the model holds has a ratio above photometric_ratio (a frame that
+    # looks at what is new: the halls' worst step 32 -> 7 mm, their final ATE 10-35% better,
+    # but two wall rows' worst steps 15-35% worse; docs/benchmarks.md, session 29)
+    covisible_colour: bool = False
     # every tracked frame's pose (where colour is registered) is refined against the previous
     # frame's image: depth's estimate a prior with its point-to-plane information, colour's
     # photometric cost at this weight times what colour has earned on the recording (its

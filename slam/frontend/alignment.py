@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from slam.camera import scale_intrinsics
 from slam.config import TrackingConfig
 from slam.frontend.frame import PreparedFrame, depth_noise
 from slam.frontend.icp import IcpResult, projective_agreement
@@ -22,6 +23,7 @@ from slam.frontend.model import TrackingModel
 from slam.frontend.photometric import mean_warped_intensity
 from slam.frontend.ransac import RansacResult
 from slam.frontend.rgbd_image import RgbdImage, grey
+from slam.frontend.weighted_icp import depth_constraint
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import FeatureSet, Keyframe
 from slam.records import TrackingStatus
@@ -73,6 +75,8 @@ class Attempt:
     f2f: np.ndarray | None = None
     # the estimate before tracking.colour_step_weight moved it (depth against the model)
     T_world_depth: np.ndarray | None = None
+    # a photometric alignment can reach the frame's pose (no fast motion, no gap before it)
+    colour_reach: bool = True
 
     def keep(self, T_world_cam: np.ndarray, icp: IcpResult, overlap: float) -> None:
         self.T_world_cam, self.icp, self.overlap = T_world_cam, icp, overlap
@@ -135,6 +139,42 @@ def joint_weight(cfg: TrackingConfig, att: Attempt) -> float | None:
     return weight
 
 
+def covisible_ratio(cfg: TrackingConfig, p: PreparedFrame, model_depth_m: np.ndarray) -> float:
+    """The constraint ratio of the frame's depth where the model has a surface to align it to
+    (``model_depth_m``, a ray-cast from the frame's guessed pose), as the frame's own ratio is
+    computed (:func:`~slam.frontend.weighted_icp.depth_constraint` on pyramid level 1): how
+    blind the frame-to-model alignment is. A frame that looks at what the model does not hold
+    yet (a near object panned into view) can be constrained by that part alone."""
+    level = min(1, len(p.pyramid) - 1)
+    step = 2**level
+    d = p.pyramid[level]
+    seen = model_depth_m[::step, ::step][: d.shape[0], : d.shape[1]] > 0
+    if seen[d > 0].all():
+        return p.constraint_ratio
+    masked = np.where(seen, d, np.float32(0.0))
+    K = scale_intrinsics(p.K_track, step)
+    return depth_constraint(masked, K, p.icp_depth_max_m, depth_noise(cfg)).ratio
+
+
+def covisible_colour(
+    cfg: TrackingConfig, att: Attempt, model_depth_m: np.ndarray
+) -> float | None:
+    """With ``tracking.covisible_colour`` (opt-in): the photometric weight colour joins a
+    frame-to-model alignment with, that depth alone would make, where the part of the frame the model holds is weak (:func:`covisible_ratio`
+    above ``photometric_ratio``, as for the frame's own ratio in ``Tracker.predict``); None
+    where it is not, where the motion is beyond colour's reach, or without registered colour.
+    The frame's other alignments stay as they were (so ``Tracker.check_motion`` still guards
+    a step depth alone made)."""
+    weight = cfg.motion_check_photometric_weight
+    if not cfg.covisible_colour or weight <= 0:
+        return None
+    if not att.colour_reach or not att.frame.colour_registered:
+        return None
+    if covisible_ratio(cfg, att.frame, model_depth_m) <= cfg.photometric_ratio:
+        return None
+    return weight if att.frame.photometric_image(len(cfg.iterations)) is not None else None
+
+
 def align_to_model(
     cfg: TrackingConfig,
     att: Attempt,
@@ -154,6 +194,15 @@ def align_to_model(
         p.K_track, w, h, T_world_guess, False, joint is not None and not refs,
         frustum_depth_m=p.depth_m,
     )  # fmt: skip
+    if joint is None:
+        joint = covisible_colour(cfg, att, render.depth_m)
+        if joint is not None:
+            att.status.photometric = True
+            refs = att.references
+            if not refs:  # the model's own colour
+                render = model.raycast(
+                    p.K_track, w, h, T_world_guess, False, True, frustum_depth_m=p.depth_m
+                )
     if refs:
         # the references' real images seen from the guess, through the model's depth: a
         # TSDF's own colour is smeared along the rays it was fused from (unseen pixels: NaN)

@@ -222,7 +222,8 @@ class Tracker:
         # apart colour joining weak depth made the cabinet 0.02 -> 0.11 m): colour joins
         # depth in every alignment. The first step's motion is unknown, not fast: its RANSAC
         # seed puts colour within reach (depth alone slid 36 mm on the first step of a hall)
-        weak = p.constraint_ratio > cfg.photometric_ratio and not (verify or fast)
+        att.colour_reach = not (verify or fast)
+        weak = p.constraint_ratio > cfg.photometric_ratio and att.colour_reach
         blind = p.constraint_ratio > cfg.degenerate_ratio or weak
         if blind and p.photometric_image(len(cfg.iterations)) is not None:
             att.photometric = cfg.motion_check_photometric_weight

@@ -13,8 +13,15 @@ from slam.config import MappingConfig, TrackingConfig
 from slam.data.base import Frame
 from slam.errors import TrackingError
 from slam.frontend import frame as frame_module
-from slam.frontend.alignment import align_from, align_to_model
+from slam.frontend.alignment import (
+    Attempt,
+    align_from,
+    align_to_model,
+    covisible_colour,
+    covisible_ratio,
+)
 from slam.frontend.features import OrbExtractor
+from slam.frontend.frame import PreparedFrame
 from slam.frontend.icp import IcpResult
 from slam.frontend.motion import scale_motion
 from slam.frontend.tracker import Tracker, icp_depth_range
@@ -22,6 +29,7 @@ from slam.frontend.tracker_state import TrackerState
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import Keyframe
 from slam.mapping.submaps import SubmapMap
+from slam.records import TrackingStatus
 from slam.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
 
 # ------------------------------------------------------------------------------------------------
@@ -280,6 +288,37 @@ def test_alternatives_do_not_keep_a_pose_the_features_contradict(world, model, m
     monkeypatch.setattr("slam.frontend.tracker.align_from", hypothesis_at(0.002))
     tracker.alternatives(att, model)
     assert att.overlap == 0.9 and _errors(att.T_world_cam, world.poses[10])[0] > 1e-3
+
+
+def _wall_and_object() -> PreparedFrame:
+    """A textured wall 2 m away filling a 640x480 view, a bumpy object about 0.5 m nearer on
+    its left half (its surface faces every way)."""
+    K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
+    depth = np.full((480, 640), 2.0, np.float32)
+    v, u = np.mgrid[40:440, 40:300]
+    depth[40:440, 40:300] = 1.5 + 0.1 * np.sin(u / 15.0) + 0.1 * np.cos(v / 15.0)
+    colour = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    tracker = Tracker(TrackingConfig(), color_registered=True)
+    return tracker.prepare(Frame(0, 0.0, colour, depth, K))
+
+
+def test_the_part_of_a_frame_the_model_holds_decides_whether_colour_joins():
+    cfg = TrackingConfig(covisible_colour=True)
+    p = _wall_and_object()
+    att = Attempt(p, TrackingStatus(0, "icp", False), np.eye(4), np.eye(4), False, False)
+    assert p.constraint_ratio < cfg.photometric_ratio  # the object holds the frame
+    everything = p.depth_m.copy()
+    assert covisible_ratio(cfg, p, everything) == p.constraint_ratio
+    assert covisible_colour(cfg, att, everything) is None
+    # the model holds the wall only (the object was panned into view): blind along it
+    wall_only = everything.copy()
+    wall_only[:, : wall_only.shape[1] // 2] = 0.0
+    assert covisible_ratio(cfg, p, wall_only) > cfg.degenerate_ratio
+    assert covisible_colour(cfg, att, wall_only) == cfg.motion_check_photometric_weight
+    att.colour_reach = False  # a fast motion: beyond the photometric term's reach
+    assert covisible_colour(cfg, att, wall_only) is None
+    att.colour_reach = True
+    assert covisible_colour(TrackingConfig(), att, wall_only) is None  # off by default
 
 
 def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(world, model, caplog):
