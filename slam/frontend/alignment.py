@@ -159,12 +159,12 @@ def covisible_ratio(cfg: TrackingConfig, p: PreparedFrame, model_depth_m: np.nda
 def covisible_colour(
     cfg: TrackingConfig, att: Attempt, model_depth_m: np.ndarray
 ) -> float | None:
-    """With ``tracking.covisible_colour`` (opt-in): the photometric weight colour joins a
-    frame-to-model alignment with, that depth alone would make, where the part of the frame the model holds is weak (:func:`covisible_ratio`
-    above ``photometric_ratio``, as for the frame's own ratio in ``Tracker.predict``); None
-    where it is not, where the motion is beyond colour's reach, or without registered colour.
-    The frame's other alignments stay as they were (so ``Tracker.check_motion`` still guards
-    a step depth alone made)."""
+    """With ``tracking.covisible_colour`` (opt-in), for a frame-to-model alignment depth alone
+    would make: the photometric weight colour joins it with where the part of the frame the
+    model holds is weak (:func:`covisible_ratio` above ``photometric_ratio``, as the frame's
+    own ratio is judged in ``Tracker.predict``). None where it is not, where the motion is
+    beyond colour's reach, or without registered colour. The frame's other alignments stay as
+    they were, so ``Tracker.check_motion`` still guards a step depth alone made."""
     weight = cfg.motion_check_photometric_weight
     if not cfg.covisible_colour or weight <= 0:
         return None
