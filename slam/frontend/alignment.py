@@ -14,16 +14,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from slam.camera import scale_intrinsics
 from slam.config import TrackingConfig
-from slam.frontend.frame import PreparedFrame, depth_noise
+from slam.frontend.frame import PreparedFrame, constraint_level, constraint_ratio, depth_noise
 from slam.frontend.icp import IcpResult, projective_agreement
 from slam.frontend.keyframe_ransac import FeatureEvidence, KeyframeRansac
 from slam.frontend.model import TrackingModel
 from slam.frontend.photometric import mean_warped_intensity
 from slam.frontend.ransac import RansacResult
 from slam.frontend.rgbd_image import RgbdImage, grey
-from slam.frontend.weighted_icp import depth_constraint
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import FeatureSet, Keyframe
 from slam.records import TrackingStatus
@@ -107,6 +105,13 @@ class Attempt:
             self.status.ransac_matches = n_matches
         return g
 
+    def hypothesis_features(self) -> FeatureSet | None:
+        """The features the alternative guesses are weighed with: the attempt's, else the
+        frame's (extracted now if need be, not kept for the attempt; None without colour)."""
+        if self.feats is None and self.frame.has_color:
+            return self.frame.features
+        return self.feats
+
     def hypotheses(
         self,
         matcher: KeyframeRansac,
@@ -120,9 +125,7 @@ class Attempt:
         only on the seed, the verification and the keyframe decision). ``evidence``: the
         features' matches against the candidates, when already made."""
         out = [("icp", np.eye(4)), ("icp", self.velocity)]
-        feats = self.feats
-        if feats is None and self.frame.has_color:
-            feats = self.frame.features
+        feats = self.hypothesis_features()
         if feats is not None and len(feats) > 0:
             g = matcher.best_motion(feats, candidates, self.T_world_prev, evidence)
             if g is not None:
@@ -145,20 +148,15 @@ def covisible_ratio(cfg: TrackingConfig, p: PreparedFrame, model_depth_m: np.nda
     computed (:func:`~slam.frontend.weighted_icp.depth_constraint` on pyramid level 1): how
     blind the frame-to-model alignment is. A frame that looks at what the model does not hold
     yet (a near object panned into view) can be constrained by that part alone."""
-    level = min(1, len(p.pyramid) - 1)
-    step = 2**level
+    level = constraint_level(p.pyramid)
     d = p.pyramid[level]
-    seen = model_depth_m[::step, ::step][: d.shape[0], : d.shape[1]] > 0
+    seen = model_depth_m[:: 2**level, :: 2**level][: d.shape[0], : d.shape[1]] > 0
     if seen[d > 0].all():
         return p.constraint_ratio
-    masked = np.where(seen, d, np.float32(0.0))
-    K = scale_intrinsics(p.K_track, step)
-    return depth_constraint(masked, K, p.icp_depth_max_m, depth_noise(cfg)).ratio
+    return constraint_ratio(p.pyramid, p.K_track, p.icp_depth_max_m, depth_noise(cfg), seen)
 
 
-def covisible_colour(
-    cfg: TrackingConfig, att: Attempt, model_depth_m: np.ndarray
-) -> float | None:
+def covisible_colour(cfg: TrackingConfig, att: Attempt, model_depth_m: np.ndarray) -> float | None:
     """With ``tracking.covisible_colour`` (opt-in), for a frame-to-model alignment depth alone
     would make: the photometric weight colour joins it with where the part of the frame the
     model holds is weak (:func:`covisible_ratio` above ``photometric_ratio``, as the frame's

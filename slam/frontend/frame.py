@@ -60,6 +60,27 @@ def usable_depth_fraction(depth_m: np.ndarray, depth_min_m: float, depth_max_m: 
     )
 
 
+def constraint_level(pyramid: list[np.ndarray]) -> int:
+    """The pyramid level a frame's constraint ratio is computed on: 1 (half the tracking
+    resolution: the ratio is a shape, not a sum), or the finest when there is no other."""
+    return min(1, len(pyramid) - 1)
+
+
+def constraint_ratio(
+    pyramid: list[np.ndarray],
+    K_track: np.ndarray,
+    depth_max_m: float,
+    noise: DepthNoise,
+    seen: np.ndarray | None = None,
+) -> float:
+    """:func:`depth_constraint`'s ratio of the depth pyramid's :func:`constraint_level`
+    (``K_track``: the finest level's intrinsics), on the pixels ``seen`` (a mask of that
+    level) when given."""
+    level = constraint_level(pyramid)
+    depth = pyramid[level] if seen is None else np.where(seen, pyramid[level], np.float32(0.0))
+    return depth_constraint(depth, scale_intrinsics(K_track, 2**level), depth_max_m, noise).ratio
+
+
 def _blind_check(
     pyramid: list[np.ndarray], K_track: np.ndarray, icp_max: float, cfg: TrackingConfig
 ) -> tuple[float, float]:
@@ -67,12 +88,10 @@ def _blind_check(
     1). The near cut is kept only where the near depth alone constrains the pose: when it is
     blind (ratio above ``degenerate_ratio``) and all depth up to ``depth_max_m`` is less so,
     all depth is used (a wall filling the view whose far corners are the only hold)."""
-    level = min(1, len(pyramid) - 1)
-    K = scale_intrinsics(K_track, 2**level)
     noise = depth_noise(cfg)
-    ratio = depth_constraint(pyramid[level], K, icp_max, noise).ratio
+    ratio = constraint_ratio(pyramid, K_track, icp_max, noise)
     if ratio > cfg.degenerate_ratio and icp_max < cfg.depth_max_m:
-        ratio_all = depth_constraint(pyramid[level], K, cfg.depth_max_m, noise).ratio
+        ratio_all = constraint_ratio(pyramid, K_track, cfg.depth_max_m, noise)
         if ratio_all < ratio:
             return cfg.depth_max_m, ratio_all
     return icp_max, ratio

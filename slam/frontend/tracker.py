@@ -282,8 +282,7 @@ class Tracker:
         ):
             return
         candidates = self._candidates()
-        feats = att.feats if att.feats is not None or not att.frame.has_color else att.frame.features
-        evidence = self.ransac.evidence(feats, candidates)
+        evidence = self.ransac.evidence(att.hypothesis_features(), candidates)
         assert att.T_world_cam is not None
         support = evidence.support(att.T_world_cam)
         for name, guess in att.hypotheses(self.ransac, candidates, evidence):
