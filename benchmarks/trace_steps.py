@@ -3,9 +3,10 @@ against ground truth, and, for chosen frames, every frame-to-model alignment tra
 
     python benchmarks/trace_steps.py ~/.cache/rgbd-slam/matrix/wall-x1-s1-240-v1
     python benchmarks/trace_steps.py SEQ --frames 85-90 --tree /path/to/other/tree
+    python benchmarks/trace_steps.py SEQ --frames 85-90 --config benchmarks/covisible_colour.yaml
 
-The run steps a :class:`slam.Slam` frame by frame (the default config; ``--tree``: import
-``slam`` from another source tree). ``--frames A-B`` prints, for each of those frames, each
+The run steps a :class:`slam.Slam` frame by frame (the default config, or ``--config``'s
+overrides; ``--tree``: import ``slam`` from another source tree). ``--frames A-B`` prints, for each of those frames, each
 model-ICP start and result as the error against ground truth relative to frame ``A - 30``
 (accumulated local drift, in mm and degrees), its overlap and ICP fitness, whether colour
 joined depth, then the path tracking kept and the frame's constraint ratio. The worst steps
@@ -38,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", default="", help="A-B: trace the alignments of these frames")
     ap.add_argument("--worst", type=int, default=6, help="list this many worst steps")
     ap.add_argument("--tree", type=Path, default=None, help="source tree to import slam from")
+    ap.add_argument("--config", type=Path, default=None, help="YAML overrides of the default")
     args = ap.parse_args(argv)
     if args.tree is not None:
         sys.path.insert(0, str(args.tree))
@@ -47,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     from slam.trajectory import read_tum
 
     logging.basicConfig(level=logging.ERROR)
-    cfg = slam.load_config(None)
+    cfg = slam.load_config(args.config)
     seq = slam.open_sequence(args.sequence, cfg.dataset.layout, cfg.dataset.calibration)
     gt = read_tum(args.sequence / "groundtruth.txt")
     first, last = (int(x) for x in args.frames.split("-")) if args.frames else (-1, -2)

@@ -175,6 +175,16 @@ class TrackingConfig:
     # a frame whose overlap with the model falls below this fraction of the recent frames'
     # (median of the last 10) is verified the same way (clean runs: >= 0.70; a jump: 0.47)
     suspect_overlap_ratio: float = 0.6
+    # a lost frame may look at what the model does not render yet: surfaces fused fewer
+    # times than mapping.raycast_weight_threshold (a fast pan brings them into view faster
+    # than frames fuse them). When relocalisation finds no keyframe either, the frame is
+    # tracked again as after a gap (ORB matches must support the pose) against the model
+    # rendered down to this weight (1: every surface seen once; 0: off). Only then: as
+    # tracking's model everywhere, weight 1 or 2 made fast walls slide more (single-frame
+    # surfaces at the view's edge, where the weak direction is held), and relocalisation
+    # (depth against a keyframe's depth) places a frame better; last, a hall panned at
+    # 135 deg/s lost 0 frames instead of 12 (docs/benchmarks.md, session 30)
+    rescue_min_weight: float = 1.0
     # while lost, every frame is relocalised against the map's keyframes (at most this many
     # candidates a frame); after this many lost frames with usable depth a new map segment starts
     relocalisation_candidates: int = 5

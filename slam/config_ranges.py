@@ -75,6 +75,7 @@ def _tracking(t: TrackingConfig) -> list[Check]:
         (t.coarse_correspondence_factor >= 1, "tracking.coarse_correspondence_factor", t.coarse_correspondence_factor, ">= 1"),
         (0 <= t.min_fitness <= 1, "tracking.min_fitness", t.min_fitness, "in [0, 1]"),
         (0 <= t.min_overlap <= 1, "tracking.min_overlap", t.min_overlap, "in [0, 1]"),
+        (t.rescue_min_weight >= 0, "tracking.rescue_min_weight", t.rescue_min_weight, ">= 0"),
         (0 <= t.hypothesis_overlap <= 1, "tracking.hypothesis_overlap", t.hypothesis_overlap, "in [0, 1]"),
         (t.inlier_threshold_m > 0, "tracking.inlier_threshold_m", t.inlier_threshold_m, "> 0"),
         (t.keyframe_translation_m > 0, "tracking.keyframe_translation_m", t.keyframe_translation_m, "> 0"),

@@ -10,6 +10,7 @@ model's ray-cast.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +26,8 @@ from slam.frontend.rgbd_image import RgbdImage, grey
 from slam.geometry import inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import FeatureSet, Keyframe
 from slam.records import TrackingStatus
+
+log = logging.getLogger(__name__)
 
 #: An estimate: ``T_world_cam``, its frame-to-model ICP and its verified overlap with the model.
 Estimate = tuple[np.ndarray, IcpResult, float]
@@ -75,6 +78,11 @@ class Attempt:
     T_world_depth: np.ndarray | None = None
     # a photometric alignment can reach the frame's pose (no fast motion, no gap before it)
     colour_reach: bool = True
+    # the frame's ORB matches against the tracker's candidates, made once (Attempt.evidence)
+    matched: FeatureEvidence | None = None
+    # the weight down to which the model renders surfaces for this attempt's alignments
+    # (None: the model's own threshold; Tracker.track's min_weight)
+    min_weight: float | None = None
 
     def keep(self, T_world_cam: np.ndarray, icp: IcpResult, overlap: float) -> None:
         self.T_world_cam, self.icp, self.overlap = T_world_cam, icp, overlap
@@ -111,6 +119,13 @@ class Attempt:
         if self.feats is None and self.frame.has_color:
             return self.frame.features
         return self.feats
+
+    def evidence(self, matcher: KeyframeRansac, candidates: list[Keyframe]) -> FeatureEvidence:
+        """The frame's ORB matches against the candidates (of :meth:`hypothesis_features`),
+        made on first use and kept for the attempt: several poses are weighed by them."""
+        if self.matched is None:
+            self.matched = matcher.evidence(self.hypothesis_features(), candidates)
+        return self.matched
 
     def hypotheses(
         self,
@@ -188,9 +203,12 @@ def align_to_model(
     w, h = p.size
     joint = joint_weight(cfg, att)
     refs = att.references if joint is not None else []
+    # the model's own weight threshold unless the attempt sets one (passed only then: the
+    # usual path asks nothing new of a TrackingModel)
+    weight = {} if att.min_weight is None else {"min_weight": att.min_weight}
     render = model.raycast(
         p.K_track, w, h, T_world_guess, False, joint is not None and not refs,
-        frustum_depth_m=p.depth_m,
+        frustum_depth_m=p.depth_m, **weight,
     )  # fmt: skip
     if joint is None:
         joint = covisible_colour(cfg, att, render.depth_m)
@@ -199,8 +217,9 @@ def align_to_model(
             refs = att.references
             if not refs:  # the model's own colour
                 render = model.raycast(
-                    p.K_track, w, h, T_world_guess, False, True, frustum_depth_m=p.depth_m
-                )
+                    p.K_track, w, h, T_world_guess, False, True, frustum_depth_m=p.depth_m,
+                    **weight,
+                )  # fmt: skip
     if refs:
         # the references' real images seen from the guess, through the model's depth: a
         # TSDF's own colour is smeared along the rays it was fused from (unseen pixels: NaN)
@@ -237,11 +256,15 @@ def align_from(
     model: TrackingModel,
     T_prev_cur: np.ndarray,
     trusted: bool,
+    evidence: FeatureEvidence | None = None,
 ) -> Estimate | None:
     """Frame-to-frame ICP against the previous frame from a guess of ``T_prev_cur`` (when
     enabled; its result is kept when it fits and does not jump), then frame-to-model ICP.
     None when the model ICP would start where this frame already started one (within
-    ``same_start_*``): the same result again, at the cost of a ray-cast."""
+    ``same_start_*``): the same result again, at the cost of a ray-cast. ``evidence``: the
+    frame's ORB matches, given when the guess is a RANSAC pose: a frame-to-frame result that
+    explains fewer than half the matches the guess explains is not kept (along a corridor
+    panned fast, ICP slid a RANSAC seed of 236 inliers 6 cm to a pose 25 matches agree with)."""
     p = att.frame
     if cfg.frame_to_frame and att.prev_depth is not None:
         joint = None
@@ -258,8 +281,11 @@ def align_from(
         else:
             f2f = p.icp_to(att.prev_depth, T_prev_cur, cfg, att.iterations)
         att.status.f2f_fitness = round(float(f2f.fitness), 4)
-        if f2f.fitness >= cfg.min_fitness and (
-            translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source) <= cfg.max_step_translation_m
+        if (
+            f2f.fitness >= cfg.min_fitness
+            and translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source)
+            <= cfg.max_step_translation_m
+            and not _contradicted(att, evidence, T_prev_cur, f2f.T_target_source)
         ):
             T_prev_cur = f2f.T_target_source
             if joint is None or prev is None:  # depth alone: what depth says of the step
@@ -275,3 +301,21 @@ def align_from(
             return None
     att.tried.append(T_world_guess)
     return align_to_model(cfg, att, model, T_world_guess, trusted)
+
+
+def _contradicted(
+    att: Attempt, evidence: FeatureEvidence | None, T_prev_guess: np.ndarray, T_prev_icp: np.ndarray
+) -> bool:
+    """The frame's ORB matches contradict an ICP result that moved a guess: it explains fewer
+    than half the matches the guess explains (False without ``evidence``)."""
+    if evidence is None:
+        return False
+    guess = evidence.support(att.T_world_prev @ T_prev_guess)
+    icp = evidence.support(att.T_world_prev @ T_prev_icp)
+    if 2 * icp >= guess:
+        return False
+    log.debug(
+        "frame %d: frame-to-frame ICP moved the RANSAC guess to a pose %d ORB matches agree "
+        "with (the guess: %d); the guess is kept", att.frame.index, icp, guess,
+    )  # fmt: skip
+    return True

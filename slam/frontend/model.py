@@ -29,8 +29,9 @@ class TrackingModel(Protocol):
 
     ``K``, ``width``, ``height``: the tracking-resolution camera; ``T_world_cam``: the guessed
     pose; ``frustum_depth_m``: the frame's depth at that resolution, which bounds the rays to the
-    blocks the frame can see (the model decides how to use it). ``depth_max_m``: depth beyond
-    this is never fused, so the model cannot hold what the frame sees beyond it."""
+    blocks the frame can see (the model decides how to use it); ``min_weight``: surfaces fused
+    with less weight are not rendered (None: the model's own threshold). ``depth_max_m``: depth
+    beyond this is never fused, so the model cannot hold what the frame sees beyond it."""
 
     @property
     def depth_max_m(self) -> float: ...
@@ -45,4 +46,5 @@ class TrackingModel(Protocol):
         with_color: bool = ...,
         *,
         frustum_depth_m: np.ndarray | None = ...,
+        min_weight: float | None = ...,
     ) -> ModelView: ...

@@ -159,13 +159,17 @@ class Tracker:
         verify: bool = False,
         dt_ratio: float = 1.0,
         segment: int = 0,
+        min_weight: float | None = None,
     ) -> tuple[np.ndarray | None, TrackingStatus]:
         """Pose of the frame (None when lost); the caller fuses it into ``model`` when
         ``status.ok``. ``dt_ratio``: this frame's interval over the usual one (the
         constant-velocity prediction is scaled by it). ``verify``: the frame follows a gap,
         so the prediction is not trusted: RANSAC and the alternative guesses are always tried,
         and the pose is accepted only when ORB matches support it (or, without features, when
-        the depth overlaps the model well). Call :meth:`reset` for the first frame."""
+        the depth overlaps the model well). ``min_weight``: the model renders surfaces down
+        to this fused weight for every alignment of the frame (None: its own threshold; a
+        lost frame is tried against every surface seen once, see
+        :class:`slam.loops.recovery.LossRecovery`). Call :meth:`reset` for the first frame."""
         if not self.initialised:
             raise TrackingError(
                 "Tracker.track called before Tracker.reset: there is no pose to start from; "
@@ -174,6 +178,7 @@ class Tracker:
         p = self.prepare(prepared)
         t0 = time.perf_counter()
         att = self.predict(p, verify, dt_ratio, segment)
+        att.min_weight = min_weight
         self.align(att, model, *self.seed(att))
         self.alternatives(att, model)
         self.check_motion(att, model)
@@ -254,7 +259,9 @@ class Tracker:
         fails the checks and RANSAC was not tried yet, frame-to-model ICP from a RANSAC pose
         (kept when it overlaps the model better)."""
         cfg = self.cfg
-        first = align_from(cfg, att, model, T_prev_cur, trusted)
+        # a RANSAC seed (the only trusted one here) is weighed against the frame's matches
+        evidence = att.evidence(self.ransac, self._candidates()) if trusted else None
+        first = align_from(cfg, att, model, T_prev_cur, trusted, evidence)
         assert first is not None  # nothing was tried before
         att.keep(*first)
         att.ok = att.passes(cfg)
@@ -282,11 +289,12 @@ class Tracker:
         ):
             return
         candidates = self._candidates()
-        evidence = self.ransac.evidence(att.hypothesis_features(), candidates)
+        evidence = att.evidence(self.ransac, candidates)
         assert att.T_world_cam is not None
         support = evidence.support(att.T_world_cam)
         for name, guess in att.hypotheses(self.ransac, candidates, evidence):
-            estimate = align_from(cfg, att, model, guess, True)
+            ransac = evidence if name == "ransac+icp" else None  # a guess the features made
+            estimate = align_from(cfg, att, model, guess, True, ransac)
             if estimate is None:
                 continue
             T2, icp2, score2 = estimate

@@ -1,11 +1,15 @@
 """Tracking with loss and recovery: the per-frame state machine around the tracker.
 
 Every frame's tracking is decided on its own. A frame without usable depth, or whose estimate
-fails the tracker's checks, is *lost* (not fused, no pose written). While lost, each frame is
-first tracked against the model as after a gap (recovery), then relocalised against all
-keyframes of the map; if that keeps failing for ``tracking.new_segment_after_lost`` frames with
-usable depth, a new map segment starts (a new submap and a new component of the pose graph),
-joined to the old map later at the first verified revisits (see :mod:`slam.loops.closer`).
+fails the tracker's checks, is *lost* (not fused, no pose written). A lost frame is relocalised
+against all keyframes of the map, and when none verifies, tracked again as after a gap against
+every surface the model has seen (``tracking.rescue_min_weight``: a fast pan brings surfaces
+into view faster than frames fuse them past the ray-cast's weight threshold). While lost,
+each frame is first tracked against the model as after a gap (recovery), then relocalised,
+then tracked against every surface seen; if that keeps failing for
+``tracking.new_segment_after_lost`` frames with usable depth, a new map segment starts (a new
+submap and a new component of the pose graph), joined to the old map later at the first
+verified revisits (see :mod:`slam.loops.closer`).
 
 States: *not started* (``segment < 0``) -> *tracking* <-> *lost* -> (new segment) *tracking*.
 ``run`` counts tracking runs (a run ends where tracking was lost); ``segment`` is the map
@@ -96,15 +100,20 @@ class LossRecovery:
         self._lose(status)
         self.lost_with_depth = 1
         found = self._relocalise(frame)
+        if found.T_world_cam is None:  # the frame follows the last tracked one: no gap to verify
+            found = self._recover_all_surfaces(frame, ratio, verify=gap)
         return found if found.T_world_cam is not None else Outcome(None, status)
 
     def _while_lost(self, frame: PreparedFrame, ratio: float) -> Outcome:
-        """Recover against the model, else relocalise, else (after enough lost frames) start a
-        new map segment where the camera was last seen."""
+        """Recover against the model, else relocalise, else recover against every surface the
+        model has seen, else (after enough lost frames) start a new map segment where the
+        camera was last seen."""
         out = self._recover(frame, ratio)
         if out.T_world_cam is None:
             tracked = out.status
             out = self._relocalise(frame)
+            if out.T_world_cam is None:
+                out = self._recover_all_surfaces(frame, ratio, verify=True)
             if out.T_world_cam is None:
                 tracked.reason += "; relocalisation: no keyframe verifies"
                 out = Outcome(None, tracked)
@@ -147,20 +156,43 @@ class LossRecovery:
             self.model.start_submap(kf.id, kf.T_world_cam)
         return Outcome(kf.T_world_cam.copy(), status, KeyframeLink("segment"))
 
-    def _recover(self, frame: PreparedFrame, ratio: float) -> Outcome:
+    def _recover(
+        self,
+        frame: PreparedFrame,
+        ratio: float,
+        min_weight: float | None = None,
+        verify: bool = True,
+    ) -> Outcome:
         """While lost: track the frame against the model as after a gap (prediction
-        extrapolated from the last pose over the time since, alternative guesses, verification
-        by ORB matches). Tracking goes on in the same run when it verifies."""
+        extrapolated from the last pose over the time since, alternative guesses, and with
+        ``verify`` verification by ORB matches), the model rendered down to ``min_weight``
+        when given. Tracking goes on in the same run when it verifies."""
         T, status = self.tracker.track(
-            frame, self.model, verify=True, dt_ratio=ratio, segment=self.segment
-        )
+            frame, self.model, verify=verify, dt_ratio=ratio, segment=self.segment,
+            min_weight=min_weight,
+        )  # fmt: skip
         if T is None:
             return Outcome(None, status)
         self._resume()
-        status.reason = f"recovered against the model after {ratio:.0f} frame intervals"
-        self.relocalisations.append({"frame": frame.index, "method": "model"})
-        log.info("frame %d: tracking recovered against the model", frame.index)
+        seen = "" if min_weight is None else f" (every surface fused at least {min_weight:g}x)"
+        status.reason = f"recovered against the model{seen} after {ratio:.0f} frame intervals"
+        record: dict[str, Any] = {"frame": frame.index, "method": "model"}
+        if min_weight is not None:
+            record["min_weight"] = min_weight
+        self.relocalisations.append(record)
+        log.info("frame %d: tracking recovered against the model%s", frame.index, seen)
         return Outcome(T, status)
+
+    def _recover_all_surfaces(self, frame: PreparedFrame, ratio: float, verify: bool) -> Outcome:
+        """A lost frame that no keyframe relocalises: :meth:`_recover` against every surface
+        the model has seen (``tracking.rescue_min_weight``), not only those fused past the
+        ray-cast's weight threshold; a lost status when that is off. ``verify``: the pose
+        needs ORB support (the frame follows a gap or lost frames; the frame that was just
+        lost follows the last tracked one, and is checked as any tracked frame is)."""
+        if self.cfg.rescue_min_weight <= 0:
+            reason = "lost; relocalisation found no keyframe that verifies"
+            return Outcome(None, self.tracker.lost_status(frame, reason, segment=self.segment))
+        return self._recover(frame, ratio, self.cfg.rescue_min_weight, verify)
 
     def _relocalise(self, frame: PreparedFrame) -> Outcome:
         """Register the frame against the whole map; on success tracking resumes there."""

@@ -273,14 +273,20 @@ class TSDFVolume:
         depth_min_m: float = 0.1,
         depth_max_m: float | None = None,
         frustum_depth_m: np.ndarray | None = None,
+        min_weight: float | None = None,
     ) -> Rendering:
         """Render depth (and normals, colour) of the model as seen from ``T_world_cam``.
 
         Rays are bounded by a range map built from a set of blocks: those a depth image
         ``frustum_depth_m`` (same intrinsics) would touch from this pose when given (tracking
-        passes the new frame's depth), else the blocks last integrated.
+        passes the new frame's depth), else the blocks last integrated. Surfaces fused with
+        less weight than ``min_weight`` (default ``mapping.raycast_weight_threshold``) are
+        not rendered.
         """
         depth_max = self.cfg.depth_max_m if depth_max_m is None else depth_max_m
+        weight = self._weight_threshold(
+            self.cfg.raycast_weight_threshold if min_weight is None else min_weight
+        )
         blocks = self._last_blocks
         # Open3D's ray-caster reads voxel (i, j, k) as if its value sat half a voxel lower than
         # where integration measured it, so surfaces render shifted by -voxel/2 on every world
@@ -319,13 +325,15 @@ class TSDFVolume:
             1.0,
             depth_min_m,
             depth_max,
-            self._weight_threshold(self.cfg.raycast_weight_threshold),
+            weight,
             self.cfg.trunc_voxels,
             down,
         )
         depth = out["depth"].numpy()[..., 0].astype(np.float32)
         if self.cfg.raycast_refine and not with_color:
-            depth = self._refine(depth, blocks, K, T_world_cam_fused, (depth_min_m, depth_max))
+            depth = self._refine(
+                depth, blocks, K, T_world_cam_fused, (depth_min_m, depth_max), weight
+            )
         bad = ~np.isfinite(depth)
         if bad.any():
             log.debug("ray-cast produced %d non-finite depths", int(bad.sum()))
@@ -349,6 +357,7 @@ class TSDFVolume:
         K: np.ndarray,
         T_world_cam: np.ndarray,
         depth_range: tuple[float, float],
+        weight: float,
     ) -> np.ndarray:
         """``depth`` (a ray-cast from ``T_world_cam`` moved by half a voxel) with each pixel a
         Newton step can refine put on the trilinear surface (:func:`_newton_depth`): a second
@@ -358,8 +367,7 @@ class TSDFVolume:
         h, w = depth.shape
         out = self.vbg.ray_cast(
             blocks, _tensor(K, np.float64), _tensor(inv_T(T_world_cam), np.float64), w, h,
-            _TRILINEAR, 1.0, *depth_range, self._weight_threshold(self.cfg.raycast_weight_threshold),
-            self.cfg.trunc_voxels, _range_map_factor(w, h),
+            _TRILINEAR, 1.0, *depth_range, weight, self.cfg.trunc_voxels, _range_map_factor(w, h),
         )  # fmt: skip
         tsdf = self.vbg.attribute("tsdf").reshape((-1,)).numpy()
         refined = _newton_depth(out, tsdf, K, T_world_cam[:3, :3], self.cfg.voxel_size_m)

@@ -290,6 +290,57 @@ def test_alternatives_do_not_keep_a_pose_the_features_contradict(world, model, m
     assert att.overlap == 0.9 and _errors(att.T_world_cam, world.poses[10])[0] > 1e-3
 
 
+def test_frame_to_frame_icp_does_not_move_a_ransac_guess_the_features_contradict(
+    world, model, monkeypatch
+):
+    # along a corridor panned fast, frame-to-frame ICP slid a RANSAC seed of 236 inliers 6 cm
+    # to a pose 25 matches agree with; the model ICP's correction back was then distrusted
+    tracker = _tracker_at(world, 9)
+    att = tracker.predict(tracker.prepare(world.frame(10)))
+    guess = inv_T(world.poses[9]) @ world.poses[10]  # what RANSAC would give
+    slid = guess @ _motion(0.06, 0.0)
+    f2f = IcpResult(slid, 0.9, 0.001)
+    icp_to = PreparedFrame.icp_to
+
+    def slides_on_the_previous_frame(self, target, *args, **kw):
+        return f2f if target is att.prev_depth else icp_to(self, target, *args, **kw)
+
+    monkeypatch.setattr(PreparedFrame, "icp_to", slides_on_the_previous_frame)
+    evidence = att.evidence(tracker.ransac, tracker._candidates())
+    assert att.evidence(tracker.ransac, tracker._candidates()) is evidence  # matched once
+    assert evidence.support(world.poses[10]) >= 20
+    kept, _, _ = align_from(tracker.cfg, att, model, guess, True, evidence)
+    assert _errors(kept, world.poses[10])[0] < 0.003 and att.f2f is None
+    # without the features, the frame-to-frame result is taken (and the model ICP's
+    # correction of 6 cm distrusted)
+    att.tried = []
+    kept, _, _ = align_from(tracker.cfg, att, model, guess, True)
+    assert _errors(kept, world.poses[10])[0] > 0.05 and att.status.model_rejected
+    # a result the features agree with is taken
+    f2f = IcpResult(guess @ _motion(0.002, 0.0), 0.9, 0.001)
+    att.tried = []
+    align_from(tracker.cfg, att, model, guess, True, evidence)
+    assert att.f2f is f2f.T_target_source
+
+def test_track_renders_the_model_down_to_min_weight(world):
+    # a model that renders only surfaces every one of its 11 frames fused (as a fast pan's
+    # newest surfaces are left out by the weight threshold): the frame overlaps it too little
+    model = SubmapMap(MappingConfig(raycast_weight_threshold=11.0), has_color=True)
+    for i in range(11):
+        f = world.frame(i)
+        model.integrate(f.depth_m, f.color, f.K, world.poses[i])
+    tracker = _tracker_at(world, 11, min_overlap=0.7)
+    T, status = tracker.track(world.frame(12), model)
+    assert T is None and status.overlap < 0.6
+    # against every surface seen once (as a lost frame is tried when no keyframe relocalises
+    # it: after a gap, ORB matches verify the pose)
+    tracker = _tracker_at(world, 11, min_overlap=0.7)
+    T, status = tracker.track(world.frame(12), model, verify=True, min_weight=1.0)
+    assert T is not None and status.overlap > 0.85
+    dt, dr = _errors(T, world.poses[12])
+    assert dt < 0.002 and dr < 0.1
+
+
 def _wall_and_object() -> PreparedFrame:
     """A textured wall 2 m away filling a 640x480 view, a bumpy object about 0.5 m nearer on
     its left half (its surface faces every way)."""

@@ -61,6 +61,22 @@ def test_raycast_renders_the_surface():
     assert ((n * p_cam).sum(1) < 0).mean() > 0.95  # silhouette pixels are grazing
 
 
+def test_raycast_leaves_out_surfaces_fused_fewer_times_than_the_weight_threshold():
+    # a wall fused three times, a second wall beside it once: the ray-cast's threshold (3)
+    # leaves the second one out; min_weight=1 renders every surface seen once
+    K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
+    vol = TSDFVolume(MappingConfig(raycast_weight_threshold=3.0), has_color=False)
+    both = np.full((240, 320), 1.5, np.float32)
+    left = both.copy()
+    left[:, 160:] = 0.0
+    for depth in (left, left, both):
+        vol.integrate(depth, None, K, np.eye(4))
+    seen = vol.raycast(K, 320, 240, np.eye(4), False).depth_m > 0
+    all_seen = vol.raycast(K, 320, 240, np.eye(4), False, min_weight=1.0).depth_m > 0
+    assert seen[20:220, 20:140].all() and not seen[:, 180:300].any()
+    assert all_seen[20:220, 20:300].all()
+
+
 def _fit_sphere(p: np.ndarray) -> tuple[np.ndarray, float]:
     """Least-squares sphere through points: |p|^2 = 2 c.p + (r^2 - |c|^2)."""
     A = np.concatenate([2 * p, np.ones((len(p), 1))], axis=1)
