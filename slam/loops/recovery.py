@@ -100,8 +100,8 @@ class LossRecovery:
         self._lose(status)
         self.lost_with_depth = 1
         found = self._relocalise(frame)
-        if found.T_world_cam is None:  # the frame follows the last tracked one: no gap to verify
-            found = self._recover_all_surfaces(frame, ratio, verify=gap)
+        if found.T_world_cam is None:  # ORB matches verify it only after a gap, as tracking does
+            found = self._recover_all_surfaces(frame, ratio, gap, found)
         return found if found.T_world_cam is not None else Outcome(None, status)
 
     def _while_lost(self, frame: PreparedFrame, ratio: float) -> Outcome:
@@ -113,7 +113,7 @@ class LossRecovery:
             tracked = out.status
             out = self._relocalise(frame)
             if out.T_world_cam is None:
-                out = self._recover_all_surfaces(frame, ratio, verify=True)
+                out = self._recover_all_surfaces(frame, ratio, True, out)
             if out.T_world_cam is None:
                 tracked.reason += "; relocalisation: no keyframe verifies"
                 out = Outcome(None, tracked)
@@ -183,15 +183,16 @@ class LossRecovery:
         log.info("frame %d: tracking recovered against the model%s", frame.index, seen)
         return Outcome(T, status)
 
-    def _recover_all_surfaces(self, frame: PreparedFrame, ratio: float, verify: bool) -> Outcome:
-        """A lost frame that no keyframe relocalises: :meth:`_recover` against every surface
-        the model has seen (``tracking.rescue_min_weight``), not only those fused past the
-        ray-cast's weight threshold; a lost status when that is off. ``verify``: the pose
-        needs ORB support (the frame follows a gap or lost frames; the frame that was just
-        lost follows the last tracked one, and is checked as any tracked frame is)."""
+    def _recover_all_surfaces(
+        self, frame: PreparedFrame, ratio: float, verify: bool, failed: Outcome
+    ) -> Outcome:
+        """A lost frame that no keyframe relocalises (``failed``, returned as it is when
+        ``tracking.rescue_min_weight`` is 0): :meth:`_recover` against every surface the model
+        has seen, not only those fused past the ray-cast's weight threshold. ``verify``: the
+        pose needs ORB support (the frame follows a gap or lost frames; the frame that was
+        just lost follows the last tracked one, and is checked as any tracked frame is)."""
         if self.cfg.rescue_min_weight <= 0:
-            reason = "lost; relocalisation found no keyframe that verifies"
-            return Outcome(None, self.tracker.lost_status(frame, reason, segment=self.segment))
+            return failed
         return self._recover(frame, ratio, self.cfg.rescue_min_weight, verify)
 
     def _relocalise(self, frame: PreparedFrame) -> Outcome:
