@@ -203,12 +203,9 @@ def align_to_model(
     w, h = p.size
     joint = joint_weight(cfg, att)
     refs = att.references if joint is not None else []
-    # the model's own weight threshold unless the attempt sets one (passed only then: the
-    # usual path asks nothing new of a TrackingModel)
-    weight = {} if att.min_weight is None else {"min_weight": att.min_weight}
     render = model.raycast(
         p.K_track, w, h, T_world_guess, False, joint is not None and not refs,
-        frustum_depth_m=p.depth_m, **weight,
+        frustum_depth_m=p.depth_m, min_weight=att.min_weight,
     )  # fmt: skip
     if joint is None:
         joint = covisible_colour(cfg, att, render.depth_m)
@@ -218,7 +215,7 @@ def align_to_model(
             if not refs:  # the model's own colour
                 render = model.raycast(
                     p.K_track, w, h, T_world_guess, False, True, frustum_depth_m=p.depth_m,
-                    **weight,
+                    min_weight=att.min_weight,
                 )  # fmt: skip
     if refs:
         # the references' real images seen from the guess, through the model's depth: a

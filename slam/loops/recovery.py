@@ -1,14 +1,13 @@
 """Tracking with loss and recovery: the per-frame state machine around the tracker.
 
 Every frame's tracking is decided on its own. A frame without usable depth, or whose estimate
-fails the tracker's checks, is *lost* (not fused, no pose written). A lost frame is relocalised
-against all keyframes of the map, and when none verifies, tracked again as after a gap against
-every surface the model has seen (``tracking.rescue_min_weight``: a fast pan brings surfaces
-into view faster than frames fuse them past the ray-cast's weight threshold). While lost,
-each frame is first tracked against the model as after a gap (recovery), then relocalised,
-then tracked against every surface seen; if that keeps failing for
-``tracking.new_segment_after_lost`` frames with usable depth, a new map segment starts (a new
-submap and a new component of the pose graph), joined to the old map later at the first
+fails the tracker's checks, is *lost* (not fused, no pose written). Each lost frame is tried,
+in order: against the model as after a gap (recovery; not for the frame just lost, which
+tracking already tried), relocalised against all keyframes of the map, then against every
+surface the model has seen (``tracking.rescue_min_weight``: a fast pan brings surfaces into
+view faster than frames fuse them past the ray-cast's weight threshold). If that keeps failing
+for ``tracking.new_segment_after_lost`` frames with usable depth, a new map segment starts (a
+new submap and a new component of the pose graph), joined to the old map later at the first
 verified revisits (see :mod:`slam.loops.closer`).
 
 States: *not started* (``segment < 0``) -> *tracking* <-> *lost* -> (new segment) *tracking*.
