@@ -322,6 +322,7 @@ def test_frame_to_frame_icp_does_not_move_a_ransac_guess_the_features_contradict
     align_from(tracker.cfg, att, model, guess, True, evidence)
     assert att.f2f is f2f.T_target_source
 
+
 def test_track_renders_the_model_down_to_min_weight(world):
     # a model that renders only surfaces every one of its 11 frames fused (as a fast pan's
     # newest surfaces are left out by the weight threshold): the frame overlaps it too little
@@ -405,6 +406,33 @@ def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(worl
     assert not att.status.photometric and att.T_world_cam is slid
     assert "frame 10: its step departs 2.0 cm from the constant-velocity prediction" in caplog.text
     assert "there is no registered colour to check it" in caplog.text
+
+
+def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_colour(world, model):
+    # the estimate is where the prediction is (no departure), but frame-to-frame ICP, the
+    # model ICP's start, ended 2 cm from it along x: one of depth's two estimates slid, more
+    # than a hand-held camera can accelerate in 1/30 s (1.1 cm), so colour decides
+    tracker = _tracker_at(world, 9)
+    p = tracker.prepare(world.frame(10))
+
+    def attempt(f2f_m: float, large: bool = False):
+        att = tracker.predict(p)
+        att.large = large
+        att.keep(world.poses[9].copy(), IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+        att.f2f = _motion(f2f_m, 0.0)
+        att.ok = True
+        tracker.check_motion(att, model)
+        return att
+
+    att = attempt(0.02)
+    assert att.status.photometric and att.ok
+    dt, dr = _errors(att.T_world_cam, world.poses[10])
+    assert dt < 0.003 and dr < 0.2
+    # within the bound, or under a large motion (each hypothesis has its own frame-to-frame
+    # estimate), depth alone stands
+    for att in (attempt(0.005), attempt(0.02, large=True)):
+        assert not att.status.photometric
+        np.testing.assert_array_equal(att.T_world_cam, world.poses[9])
 
 
 def test_the_near_cut_is_dropped_where_near_depth_alone_is_blind():
