@@ -92,6 +92,16 @@ class Attempt:
         assert self.icp is not None
         return self.overlap >= cfg.min_overlap and self.icp.fitness >= cfg.min_fitness
 
+    def depth_disagreement(self) -> float:
+        """How far apart (m) depth's two estimates of the frame are: frame-to-frame ICP (depth
+        alone, :attr:`f2f`) and the model ICP that started from it. 0 when there is no such
+        pair: no frame-to-frame result, a large motion (its hypotheses each have their own) or
+        a RANSAC rescue (the estimate kept did not start from it)."""
+        if self.f2f is None or self.large or self.status.path != "icp":
+            return 0.0
+        assert self.T_world_cam is not None
+        return translation_norm(inv_T(self.T_world_prev @ self.f2f) @ self.T_world_cam)
+
     def features(self) -> FeatureSet | None:
         """The frame's features, from now on used by this attempt (None without colour)."""
         if self.feats is None:

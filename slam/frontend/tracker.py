@@ -337,7 +337,7 @@ class Tracker:
         predicted = att.T_world_prev @ att.velocity
         bound = cfg.max_acceleration_m_s2 * att.dt_s**2
         departure = translation_norm(inv_T(predicted) @ att.T_world_cam)
-        disagreement = _depth_disagreement(att)
+        disagreement = att.depth_disagreement()
         if max(departure, disagreement) <= bound:
             return
         what = (
@@ -536,17 +536,6 @@ class Tracker:
         ``Keyframe.from_state``): the next ``track`` gives what it would have given."""
         self.state = TrackerState.from_dict(state, keyframes_by_id, len(self.cfg.iterations))
         self._rng.bit_generator.state = state["rng"]
-
-
-def _depth_disagreement(att: Attempt) -> float:
-    """How far apart (m) depth's two estimates of a frame are: frame-to-frame ICP (depth alone)
-    and the model ICP that started from it. 0 when there is no such pair: no frame-to-frame
-    result, or a large motion (its hypotheses each have their own) or a RANSAC rescue (the
-    estimate kept did not start from it)."""
-    if att.f2f is None or att.large or att.status.path != "icp":
-        return 0.0
-    assert att.T_world_cam is not None
-    return translation_norm(inv_T(att.T_world_prev @ att.f2f) @ att.T_world_cam)
 
 
 def _warn_unconfirmed(att: Attempt, what: str, bound_m: float, why: str) -> None:

@@ -415,9 +415,9 @@ def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_c
     tracker = _tracker_at(world, 9)
     p = tracker.prepare(world.frame(10))
 
-    def attempt(f2f_m: float, large: bool = False):
+    def attempt(f2f_m: float, large: bool = False, path: str = "icp"):
         att = tracker.predict(p)
-        att.large = large
+        att.large, att.status.path = large, path
         att.keep(world.poses[9].copy(), IcpResult(np.eye(4), 0.9, 0.001), 0.9)
         att.f2f = _motion(f2f_m, 0.0)
         att.ok = True
@@ -428,9 +428,9 @@ def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_c
     assert att.status.photometric and att.ok
     dt, dr = _errors(att.T_world_cam, world.poses[10])
     assert dt < 0.003 and dr < 0.2
-    # within the bound, or under a large motion (each hypothesis has its own frame-to-frame
-    # estimate), depth alone stands
-    for att in (attempt(0.005), attempt(0.02, large=True)):
+    # within the bound, under a large motion (each hypothesis has its own frame-to-frame
+    # estimate) or after a RANSAC rescue (the estimate did not start from it), depth stands
+    for att in (attempt(0.005), attempt(0.02, large=True), attempt(0.02, path="ransac+icp")):
         assert not att.status.photometric
         np.testing.assert_array_equal(att.T_world_cam, world.poses[9])
 
