@@ -103,12 +103,16 @@ class TrackingConfig:
     photometric_frame_to_frame: bool = False  # ... the frame-to-frame alignment joint too
     # a step departing from the constant-velocity prediction by more than a hand-held camera
     # can accelerate in the frame interval (max_acceleration_m_s2 * dt^2: 11 mm at 30 Hz) is
-    # not taken from depth alone, nor one whose frame-to-frame and model ICP end further apart
-    # than that: the frame is aligned again with colour joining depth at this photometric
-    # weight (where colour is registered; 0 = off). Depth slides along a wall filling the view
-    # or a corridor; texture does not
+    # not taken from depth alone: the frame is aligned again with colour joining depth at this
+    # photometric weight (where colour is registered; 0 = off). Depth slides along a wall
+    # filling the view or a corridor; texture does not
     max_acceleration_m_s2: float = 10.0
     motion_check_photometric_weight: float = 1.0
+    # opt-in: nor a frame whose frame-to-frame and model ICP end further apart than that bound
+    # (one of them slid): every hall row's odometry 8-35% better, but two rows' worst steps
+    # worse beyond their spread (a desk on exact depth, a wall with colour 15 ms off depth;
+    # docs/benchmarks.md, session 32)
+    depth_disagreement_check: bool = False
     # geometry is blind when the frame's own depth constrains the pose this many times worse
     # along its weakest direction than along its strongest (standard deviations, rotations as
     # motion at the scene's depth; slam.frontend.weighted_icp.depth_constraint, on the ICP

@@ -15,8 +15,8 @@ rescued by ORB + RANSAC against the last keyframes.
 4. :meth:`~Tracker.alternatives`: under large motion or failure, other guesses (no motion,
    constant velocity, the best RANSAC pose); the best overlap wins;
    :meth:`~Tracker.check_motion`: an estimate that departs from the prediction by more than a
-   hand-held camera can accelerate, or whose frame-to-frame and model ICP end that far apart,
-   is aligned again with colour joining depth (depth slides along a wall filling the view;
+   hand-held camera can accelerate (opt-in, ``tracking.depth_disagreement_check``: or whose
+   frame-to-frame and model ICP end that far apart) is aligned again with colour joining depth (depth slides along a wall filling the view;
    texture does not); :meth:`~Tracker.colour_first_step`: the
    first step, aligned with colour taken off the depth's instant, again once the step gives
    where the colour cameras were; :meth:`~Tracker.colour_step` (opt-in,
@@ -317,8 +317,9 @@ class Tracker:
         """Stage 4b: a step that breaks the motion pattern, or that depth's two estimates
         disagree on, is not accepted on depth alone. The bound is what a hand-held camera can
         accelerate over the interval (``max_acceleration_m_s2 * dt^2``). When the estimate
-        departs from the constant-velocity prediction by more, or frame-to-frame ICP and the
-        model ICP that started from it end further apart (one of them slid), depth may be
+        departs from the constant-velocity prediction by more, or (opt-in,
+        ``tracking.depth_disagreement_check``) frame-to-frame ICP and the model ICP that
+        started from it end further apart (one of them slid), depth may be
         sliding where its geometry is blind (a wall filling the view, a corridor, a far hall):
         the frame is aligned again, frame to frame and then to the model, with colour joining
         depth (where colour is registered), from the prediction, and that estimate is kept when
@@ -337,7 +338,7 @@ class Tracker:
         predicted = att.T_world_prev @ att.velocity
         bound = cfg.max_acceleration_m_s2 * att.dt_s**2
         departure = translation_norm(inv_T(predicted) @ att.T_world_cam)
-        disagreement = att.depth_disagreement()
+        disagreement = att.depth_disagreement() if cfg.depth_disagreement_check else 0.0
         if max(departure, disagreement) <= bound:
             return
         what = (

@@ -412,7 +412,7 @@ def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_c
     # the estimate is where the prediction is (no departure), but frame-to-frame ICP, the
     # model ICP's start, ended 2 cm from it along x: one of depth's two estimates slid, more
     # than a hand-held camera can accelerate in 1/30 s (1.1 cm), so colour decides
-    tracker = _tracker_at(world, 9)
+    tracker = _tracker_at(world, 9, depth_disagreement_check=True)
     p = tracker.prepare(world.frame(10))
 
     def attempt(f2f_m: float, large: bool = False, path: str = "icp"):
@@ -433,6 +433,10 @@ def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_c
     for att in (attempt(0.005), attempt(0.02, large=True), attempt(0.02, path="ransac+icp")):
         assert not att.status.photometric
         np.testing.assert_array_equal(att.T_world_cam, world.poses[9])
+    tracker.cfg = TrackingConfig()  # off by default
+    att = attempt(0.02)
+    assert not att.status.photometric
+    np.testing.assert_array_equal(att.T_world_cam, world.poses[9])
 
 
 def test_the_near_cut_is_dropped_where_near_depth_alone_is_blind():
