@@ -83,6 +83,9 @@ class Attempt:
     # the weight down to which the model renders surfaces for this attempt's alignments
     # (None: the model's own threshold; Tracker.track's min_weight)
     min_weight: float | None = None
+    # the departure of the estimate kept from the prediction as an acceleration (m/s^2;
+    # Tracker.check_motion), None when there was no prediction to depart from
+    acceleration: float | None = None
 
     def keep(self, T_world_cam: np.ndarray, icp: IcpResult, overlap: float) -> None:
         self.T_world_cam, self.icp, self.overlap = T_world_cam, icp, overlap

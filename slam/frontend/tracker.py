@@ -15,9 +15,12 @@ rescued by ORB + RANSAC against the last keyframes.
 4. :meth:`~Tracker.alternatives`: under large motion or failure, other guesses (no motion,
    constant velocity, the best RANSAC pose); the best overlap wins;
    :meth:`~Tracker.check_motion`: an estimate that departs from the prediction by more than a
-   hand-held camera can accelerate (opt-in, ``tracking.depth_disagreement_check``: or whose
-   frame-to-frame and model ICP end that far apart) is aligned again with colour joining depth (depth slides along a wall filling the view;
-   texture does not); :meth:`~Tracker.colour_first_step`: the
+   hand-held camera can accelerate, or several times more than this recording's recent
+   frames did (``tracking.unusual_departure_factor``; kept only where colour returns it
+   towards the prediction), is aligned again with colour joining depth (opt-in,
+   ``tracking.depth_disagreement_check``: also one whose frame-to-frame and model ICP end
+   far apart); depth slides along a wall filling the view, texture does not;
+   :meth:`~Tracker.colour_first_step`: the
    first step, aligned with colour taken off the depth's instant, again once the step gives
    where the colour cameras were; :meth:`~Tracker.colour_step` (opt-in,
    ``tracking.colour_step_weight``): the estimate refined against the previous frame's
@@ -328,7 +331,13 @@ class Tracker:
         wall and corridor rows of the scene matrix; the disagreement of depth's two estimates
         catches slides the prediction does not: a wall whose frame-to-frame ICP slid 25 mm
         and the model ICP took back to 7 mm, within the bound of the prediction. See
-        docs/benchmarks.md, session 32.)"""
+        docs/benchmarks.md, session 32.) A departure below the bound but more than
+        ``tracking.unusual_departure_factor`` times this recording's usual one (the median
+        acceleration of the last ``unusual_departure_window`` estimates kept) breaks the
+        recording's own motion pattern: colour's estimate is kept there only when it departs
+        less than depth's (a smooth pan's slides stand out against its pattern; a hand-held
+        Kinect's colour moved such steps away). Every checked frame's departure, of the
+        estimate kept, joins the pattern (:attr:`Attempt.acceleration`)."""
         cfg = self.cfg
         if not (att.ok and cfg.motion_check_photometric_weight > 0 and att.photometric == 0):
             return
@@ -338,14 +347,23 @@ class Tracker:
         predicted = att.T_world_prev @ att.velocity
         bound = cfg.max_acceleration_m_s2 * att.dt_s**2
         departure = translation_norm(inv_T(predicted) @ att.T_world_cam)
+        att.acceleration = departure / att.dt_s**2
         disagreement = att.depth_disagreement() if cfg.depth_disagreement_check else 0.0
-        if max(departure, disagreement) <= bound:
+        usual = self._usual_departure(att.dt_s)
+        if max(departure, disagreement) <= bound and departure <= usual:
             return
-        what = (
-            f"its step departs {100 * departure:.1f} cm from the constant-velocity prediction"
-            if departure > bound
-            else f"depth's two estimates of it are {100 * disagreement:.1f} cm apart"
-        )
+        if departure > bound:
+            what = (
+                f"its step departs {100 * departure:.1f} cm from the constant-velocity prediction"
+            )
+        elif departure > usual:
+            what = (
+                f"its step departs {100 * departure:.1f} cm from the constant-velocity "
+                f"prediction, {departure / usual * cfg.unusual_departure_factor:.1f} times "
+                "the recent frames' median"
+            )
+        else:
+            what = f"depth's two estimates of it are {100 * disagreement:.1f} cm apart"
         if att.frame.photometric_image(len(cfg.iterations)) is None:
             _warn_unconfirmed(att, what, bound, "there is no registered colour to check it")
             return
@@ -354,9 +372,18 @@ class Tracker:
         estimate = align_from(cfg, att, model, att.velocity, False)
         assert estimate is not None  # nothing was tried since the list was emptied
         T2, icp2, score2 = estimate
+        # a step only unusual for this recording is kept on depth unless colour's estimate
+        # returns towards the motion pattern (colour on a real Kinect moved such steps away)
+        unusual_only = max(departure, disagreement) <= bound
+        colour_departure = translation_norm(inv_T(predicted) @ T2)
+        if unusual_only and colour_departure >= departure:
+            att.photometric = 0.0
+            return
         if score2 >= cfg.min_overlap and icp2.fitness >= cfg.min_fitness:
             att.keep(T2, icp2, score2)
             att.status.photometric = True
+            # the motion pattern is the estimates kept (a slide colour undid is not part of it)
+            att.acceleration = colour_departure / att.dt_s**2
         else:
             _warn_unconfirmed(att, what, bound, "aligning with colour failed the checks")
         att.ok = att.passes(cfg)
@@ -491,6 +518,9 @@ class Tracker:
             att.feats = p.features
         moved = att.T_world_depth is not None and att.T_world_depth is not att.T_world_cam
         st.advance(p, T, velocity, att.overlap, att.feats, att.T_world_depth if moved else None)
+        if att.acceleration is not None:
+            window = cfg.unusual_departure_window
+            st.recent_accelerations = (st.recent_accelerations + [att.acceleration])[-window:]
         kf = self.last_keyframe
         if kf is not None:
             rel = inv_T(kf.T_world_cam) @ T
@@ -521,6 +551,16 @@ class Tracker:
         else:  # the pose its colour was seen from
             T_colour = T.copy() if p.T_depth_colour is None else T @ p.T_depth_colour
             st.references = (st.references + [(image, T_colour)])[-self.cfg.photometric_keyframes :]
+
+    def _usual_departure(self, dt_s: float) -> float:
+        """The departure from the prediction (m) over ``dt_s`` above which a step breaks this
+        recording's own motion pattern: ``tracking.unusual_departure_factor`` times the
+        median acceleration of the recent depth-alone frames' departures (infinite when off,
+        or before a third of the window has been seen since tracking (re)started)."""
+        cfg, recent = self.cfg, self.state.recent_accelerations
+        if cfg.unusual_departure_factor <= 0 or 3 * len(recent) < cfg.unusual_departure_window:
+            return float("inf")
+        return cfg.unusual_departure_factor * float(np.median(recent)) * dt_s**2
 
     def _candidates(self) -> list[Keyframe]:
         return self.state.ransac_candidates(self.cfg.relocalisation_keyframes)

@@ -40,6 +40,8 @@ class TrackerState:
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
     recent_overlaps: list[float] = field(default_factory=list)  # of the last tracked frames
+    # the last frames' departures from the prediction (of the estimates kept), as m/s^2
+    recent_accelerations: list[float] = field(default_factory=list)
     # the last keyframes' depth and grey pyramids and poses, oldest first: the colour frames
     # are aligned to against the model (tracking.photometric_reference: keyframe); empty
     # without colour
@@ -74,6 +76,7 @@ class TrackerState:
         self.prev_frame = p
         self.t_prev = p.timestamp
         self.recent_overlaps = []
+        self.recent_accelerations = []
         self.prev_features = _features_keyframe(p, T_world_cam, feats)
 
     def advance(
@@ -138,6 +141,7 @@ class TrackerState:
             "prev_depth": self.prev_depth,
             "prev_features": None if prev is None else prev.to_state(),
             "recent_overlaps": list(self.recent_overlaps),
+            "recent_accelerations": list(self.recent_accelerations),
             "t_prev": self.t_prev,
             "keyframes": [kf.id for kf in self.keyframes],
             "T_world_prev_depth": self.T_world_prev_depth,
@@ -162,8 +166,7 @@ class TrackerState:
         refs = d.get("references", [r for r in [d.get("reference")] if r is not None])
         return TrackerState(
             references=[
-                (RgbdImage(r["depth_m"], r["grey"], r["K"], levels), r["T_world_cam"])
-                for r in refs
+                (RgbdImage(r["depth_m"], r["grey"], r["K"], levels), r["T_world_cam"]) for r in refs
             ],
             T_world_prev=d["T_world_prev"],
             prev_features=None if prev is None else Keyframe.from_state(prev),
@@ -172,11 +175,15 @@ class TrackerState:
             velocity=d["velocity"],
             keyframes=[keyframes_by_id[int(i)] for i in d["keyframes"]],
             recent_overlaps=list(d["recent_overlaps"]),
+            recent_accelerations=[float(a) for a in d.get("recent_accelerations", [])],
             t_prev=d.get("t_prev"),
             # checkpoints written before tracking.colour_step_weight: the pose was depth's
             T_world_prev_depth=d.get("T_world_prev_depth", d["T_world_prev"]),
             colour_agreement=ColourAgreement(
-                [(float(a), float(b)) for a, b in np.reshape(d.get("colour_agreement", []), (-1, 2))]
+                [
+                    (float(a), float(b))
+                    for a, b in np.reshape(d.get("colour_agreement", []), (-1, 2))
+                ]
             ),
         )
 

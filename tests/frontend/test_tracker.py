@@ -439,6 +439,50 @@ def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_c
     np.testing.assert_array_equal(att.T_world_cam, world.poses[9])
 
 
+def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
+    # the recording's camera has accelerated 0.5 m/s^2 (median of its recent departures):
+    # 3x that over 1/30 s is 1.7 mm, far below what a hand-held camera can (1.1 cm)
+    tracker = _tracker_at(world, 9)
+    tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10]  # the true step
+    tracker.state.recent_accelerations = [0.5] * 30
+    p = tracker.prepare(world.frame(10))
+
+    def attempt(T_world_cam: np.ndarray):
+        att = tracker.predict(p)
+        att.keep(T_world_cam, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+        att.ok = True
+        tracker.check_motion(att, model)
+        return att
+
+    # depth slid 5 mm: unusual here, within the bound: colour returns it to the prediction
+    slid = world.poses[10] @ _motion(0.005, 0.0)
+    att = attempt(slid)
+    assert att.status.photometric and att.ok
+    dt, dr = _errors(att.T_world_cam, world.poses[10])
+    assert dt < 0.002 and dr < 0.2
+    # the motion pattern goes on from the estimate kept, not the slide colour undid
+    assert att.acceleration == pytest.approx(dt * 30**2, rel=1e-6)
+    # colour's estimate departs further than depth's: depth's step stands
+    tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10] @ _motion(0.006, 0.0)
+    near = world.poses[10] @ _motion(0.002, 0.0)
+    att = attempt(near)
+    assert not att.status.photometric and att.photometric == 0 and att.T_world_cam is near
+    # before a third of the window is known, or off, depth alone stands
+    tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10]
+    tracker.state.recent_accelerations = [0.5] * 9
+    assert attempt(slid).T_world_cam is slid
+    assert TrackingConfig().unusual_departure_factor == 3.0  # on by default
+    tracker.cfg = TrackingConfig(unusual_departure_factor=0.0)
+    tracker.state.recent_accelerations = [0.5] * 30
+    assert attempt(slid).T_world_cam is slid
+    # commit records the departure of the estimate kept, the last window of them
+    att = attempt(slid)
+    assert att.acceleration == pytest.approx(0.005 * 30**2, rel=1e-6)
+    tracker.cfg = TrackingConfig(unusual_departure_factor=3.0, unusual_departure_window=30)
+    tracker.commit(att)
+    assert tracker.state.recent_accelerations == [0.5] * 29 + [att.acceleration]
+
+
 def test_the_near_cut_is_dropped_where_near_depth_alone_is_blind():
     # the wall scene kind, frame 24: a textured wall ~2 m away fills most of the view, so the
     # near-fraction rule picks the 2.5 m cut; the near depth is then blind along the wall and
@@ -801,6 +845,8 @@ def test_state_dict_round_trip_gives_the_same_next_result(world, model):
     b = Tracker(TrackingConfig(photometric_reference="keyframe"))
     b.load_state_dict(state, keyframes)
     assert b.state.keyframes == [keyframes[i] for i in state["keyframes"]]
+    assert b.state.recent_accelerations == a.state.recent_accelerations
+    assert len(a.state.recent_accelerations) == 4  # frames 5-8 (departures from the prediction)
     assert all(np.array_equal(x, y) for x, y in zip(b.state.prev_pyramid, a.state.prev_pyramid))
     # the colour references (the last keyframes' images) come back with every pyramid level
     assert len(a.state.references) == len(b.state.references) >= 1
