@@ -113,17 +113,18 @@ class TrackingConfig:
     # worse beyond their spread (a desk on exact depth, a wall with colour 15 ms off depth;
     # docs/benchmarks.md, session 32)
     depth_disagreement_check: bool = False
-    # nor a frame whose departure from the prediction, as an acceleration (departure / dt^2),
-    # is more than this many times the median of the last unusual_departure_window frames'
-    # (the recording's own motion pattern, from the estimates kept: a smooth pan accelerates
-    # far less than a hand-held camera can, and slides below max_acceleration_m_s2 stand out
-    # against it; 3: a 3-D Gaussian's departures pass 3x their median with probability
-    # ~1e-4). Such a step is kept on depth unless colour's estimate returns towards the
-    # prediction (on tum-fr1-xyz colour moved such steps away). 0 = off. On the scene matrix:
-    # desks' odometry 20-50% better, walls' worst steps 2-3x smaller, halls 5-40% better,
-    # synthetic desks tracked at half the speed (colour holds frames whose model is bent);
-    # docs/benchmarks.md, session 33
-    unusual_departure_factor: float = 3.0
+    # opt-in (0 = off): nor a frame whose departure from the prediction, as an acceleration
+    # (departure / dt^2), is more than this many times the median of the last
+    # unusual_departure_window frames' (the recording's own motion pattern, from the
+    # estimates kept: a smooth pan accelerates far less than a hand-held camera can, and
+    # slides below max_acceleration_m_s2 stand out against it; 3: a 3-D Gaussian's
+    # departures pass 3x their median with probability ~1e-4). Such a step is kept on depth
+    # unless colour's estimate returns towards the prediction (on tum-fr1-xyz colour moved
+    # such steps away). At 3 on the scene matrix: desks' odometry 20-70% better, the walls'
+    # worst steps up to 3x smaller, no row worse beyond its spread; but synthetic desks track
+    # at half the speed and tum-fr1-xyz 6% slower (34 of its 790 frames checked, ~100 ms
+    # each): past the speed budget. docs/benchmarks.md, session 33
+    unusual_departure_factor: float = 0.0
     unusual_departure_window: int = 30
     # geometry is blind when the frame's own depth constrains the pose this many times worse
     # along its weakest direction than along its strongest (standard deviations, rotations as

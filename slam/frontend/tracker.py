@@ -15,11 +15,11 @@ rescued by ORB + RANSAC against the last keyframes.
 4. :meth:`~Tracker.alternatives`: under large motion or failure, other guesses (no motion,
    constant velocity, the best RANSAC pose); the best overlap wins;
    :meth:`~Tracker.check_motion`: an estimate that departs from the prediction by more than a
-   hand-held camera can accelerate, or several times more than this recording's recent
-   frames did (``tracking.unusual_departure_factor``; kept only where colour returns it
-   towards the prediction), is aligned again with colour joining depth (opt-in,
-   ``tracking.depth_disagreement_check``: also one whose frame-to-frame and model ICP end
-   far apart); depth slides along a wall filling the view, texture does not;
+   hand-held camera can accelerate is aligned again with colour joining depth (opt-in,
+   ``tracking.unusual_departure_factor``: also one departing several times more than this
+   recording's recent frames did, kept only where colour returns it towards the
+   prediction; ``tracking.depth_disagreement_check``: one whose frame-to-frame and model
+   ICP end far apart); depth slides along a wall filling the view, texture does not;
    :meth:`~Tracker.colour_first_step`: the
    first step, aligned with colour taken off the depth's instant, again once the step gives
    where the colour cameras were; :meth:`~Tracker.colour_step` (opt-in,
@@ -331,7 +331,7 @@ class Tracker:
         wall and corridor rows of the scene matrix; the disagreement of depth's two estimates
         catches slides the prediction does not: a wall whose frame-to-frame ICP slid 25 mm
         and the model ICP took back to 7 mm, within the bound of the prediction. See
-        docs/benchmarks.md, session 32.) A departure below the bound but more than
+        docs/benchmarks.md, session 32.) Opt-in: a departure below the bound but more than
         ``tracking.unusual_departure_factor`` times this recording's usual one (the median
         acceleration of the last ``unusual_departure_window`` estimates kept) breaks the
         recording's own motion pattern: colour's estimate is kept there only when it departs

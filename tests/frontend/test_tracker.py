@@ -442,7 +442,7 @@ def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_c
 def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
     # the recording's camera has accelerated 0.5 m/s^2 (median of its recent departures):
     # 3x that over 1/30 s is 1.7 mm, far below what a hand-held camera can (1.1 cm)
-    tracker = _tracker_at(world, 9)
+    tracker = _tracker_at(world, 9, unusual_departure_factor=3.0)
     tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10]  # the true step
     tracker.state.recent_accelerations = [0.5] * 30
     p = tracker.prepare(world.frame(10))
@@ -471,15 +471,14 @@ def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
     tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10]
     tracker.state.recent_accelerations = [0.5] * 9
     assert attempt(slid).T_world_cam is slid
-    assert TrackingConfig().unusual_departure_factor == 3.0  # on by default
-    tracker.cfg = TrackingConfig(unusual_departure_factor=0.0)
+    tracker.cfg = TrackingConfig()  # off by default
     tracker.state.recent_accelerations = [0.5] * 30
     assert attempt(slid).T_world_cam is slid
     # commit records the departure of the estimate kept, the last window of them
     att = attempt(slid)
     assert att.acceleration == pytest.approx(0.005 * 30**2, rel=1e-6)
     tracker.cfg = TrackingConfig(unusual_departure_factor=3.0, unusual_departure_window=30)
-    tracker.commit(att)
+    tracker.commit(att)  # (recorded whether or not the check is on)
     assert tracker.state.recent_accelerations == [0.5] * 29 + [att.acceleration]
 
 
