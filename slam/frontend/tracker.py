@@ -519,8 +519,7 @@ class Tracker:
         moved = att.T_world_depth is not None and att.T_world_depth is not att.T_world_cam
         st.advance(p, T, velocity, att.overlap, att.feats, att.T_world_depth if moved else None)
         if att.acceleration is not None:
-            window = cfg.unusual_departure_window
-            st.recent_accelerations = (st.recent_accelerations + [att.acceleration])[-window:]
+            st.record_departure(att.acceleration, cfg.unusual_departure_window)
         kf = self.last_keyframe
         if kf is not None:
             rel = inv_T(kf.T_world_cam) @ T
@@ -555,8 +554,8 @@ class Tracker:
     def _usual_departure(self, dt_s: float) -> float:
         """The departure from the prediction (m) over ``dt_s`` above which a step breaks this
         recording's own motion pattern: ``tracking.unusual_departure_factor`` times the
-        median acceleration of the recent depth-alone frames' departures (infinite when off,
-        or before a third of the window has been seen since tracking (re)started)."""
+        median acceleration of the recent estimates' departures (infinite when off, or before
+        a third of the window has been seen since tracking (re)started)."""
         cfg, recent = self.cfg, self.state.recent_accelerations
         if cfg.unusual_departure_factor <= 0 or 3 * len(recent) < cfg.unusual_departure_window:
             return float("inf")

@@ -101,6 +101,11 @@ class TrackerState:
         self.t_prev = p.timestamp
         self.prev_features = _features_keyframe(p, T_world_cam, feats)
 
+    def record_departure(self, acceleration_m_s2: float, window: int) -> None:
+        """A tracked frame's departure from the prediction, as an acceleration: the last
+        ``window`` of them are the recording's motion pattern."""
+        self.recent_accelerations = (self.recent_accelerations + [acceleration_m_s2])[-window:]
+
     def forget_previous(self) -> None:
         """The previous frame cannot be aligned to any more; pose and velocity stay."""
         self.prev_depth = None
