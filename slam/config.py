@@ -123,7 +123,9 @@ class TrackingConfig:
     # such steps away). At 3 on the scene matrix: desks' odometry 20-70% better, the walls'
     # worst steps up to 3x smaller, no row worse beyond its spread; but synthetic desks track
     # at half the speed and tum-fr1-xyz 6% slower (34 of its 790 frames checked, ~100 ms
-    # each): past the speed budget. docs/benchmarks.md, session 33
+    # each): past the speed budget. docs/benchmarks.md, session 33. Such a step is aligned
+    # again only where the images, scored on the way from it to the prediction, do not
+    # prefer depth's end (a few ms: fr1's 24 unusual steps -> 13 alignments; session 34)
     unusual_departure_factor: float = 0.0
     unusual_departure_window: int = 30
     # geometry is blind when the frame's own depth constrains the pose this many times worse

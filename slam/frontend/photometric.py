@@ -315,6 +315,65 @@ def _joint_equations(parts: _Parts, terms: _Terms) -> tuple[np.ndarray, np.ndarr
     return H, b, rg
 
 
+def colour_pose(
+    T_target_source: np.ndarray, C_source: np.ndarray | None, C_target: np.ndarray | None
+) -> np.ndarray | None:
+    """The pose of the source's colour camera in the target's colour camera, from the depth
+    cameras' ``T_target_source`` and each colour camera's pose in its depth camera (``C_*``,
+    ``T_depth_colour``; None: the same pose). None when both are None (the depth cameras'
+    pose is the colour cameras')."""
+    if C_source is None and C_target is None:
+        return None
+    T = T_target_source if C_source is None else T_target_source @ C_source
+    return T if C_target is None else inv_T(C_target) @ T
+
+
+def photometric_costs(
+    source: _SourceLevel,
+    target: _TargetLevel,
+    K: np.ndarray,
+    steps: list[tuple[np.ndarray, np.ndarray | None]],
+    gate_m: float,
+) -> list[float]:
+    """What two images say of competing poses, without an alignment: the photometric cost of
+    ``source`` against ``target`` (intrinsics ``K``) at each of ``steps``, pairs of
+    ``T_target_source`` and the pose of the source's colour camera in the target's (None:
+    the same). The cost is the mean Huber loss of the intensity differences, less their median
+    (a brightness offset), at 1.345 robust scales of the first step's, over the source points
+    every step sees (in front of the target camera, inside its image, and within ``gate_m`` of
+    its depth there, so no step is scored on pixels another step has occluded); infinite
+    when fewer than 6 are seen by all."""
+    assert source.intensity is not None and target.photo is not None
+    fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    h, w = target.shape
+    seen = np.ones(len(source.points), bool)
+    pixels = []
+    for T, T_colour in steps:
+        Q, uf, vf, _ = _project(source.points, T, fx, fy, cx, cy)
+        if T_colour is not None:
+            _, uf_c, vf_c, _ = _project(source.points, T_colour, fx, fy, cx, cy)
+        else:
+            uf_c, vf_c = uf, vf
+        ui, vi = np.rint(uf).astype(np.int64), np.rint(vf).astype(np.int64)
+        inside = (Q[:, 2] > 1e-3) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+        inside &= (uf_c >= 0) & (uf_c <= w - 1) & (vf_c >= 0) & (vf_c <= h - 1)
+        zt = target.depth[np.where(inside, vi * w + ui, 0)]
+        seen &= inside & (zt > 0) & (np.abs(zt - Q[:, 2]) < gate_m)
+        pixels.append((uf_c, vf_c))
+    if np.count_nonzero(seen) < 6:
+        return [float("inf")] * len(steps)
+    residuals = []
+    for uf_c, vf_c in pixels:
+        r = _sample(target.photo, uf_c[seen], vf_c[seen])[:, 0] - source.intensity[seen]
+        residuals.append(r - np.float32(median(r)))
+    delta = 1.345 * robust_scale(residuals[0], _MIN_PHO_SCALE)
+    costs = []
+    for r in residuals:
+        a = np.abs(r).astype(np.float64)
+        costs.append(float(np.mean(np.where(a <= delta, 0.5 * a * a, delta * (a - 0.5 * delta)))))
+    return costs
+
+
 def joint_align(
     source: RgbdImage,
     target: RgbdImage,
@@ -372,10 +431,7 @@ def joint_align(
         tgt = target.target(level)
         in_range = np.count_nonzero(src.points[:, 2] < fitness_depth_max_m) if level == 0 else 0
         for _ in range(n_iter):
-            T_colour = None
-            if use_pho and (C_src is not None or C_tgt is not None):
-                T_colour = T if C_src is None else T @ C_src
-                T_colour = T_colour if C_tgt is None else inv_T(C_tgt) @ T_colour
+            T_colour = colour_pose(T, C_src, C_tgt) if use_pho else None
             parts = _term_equations(src, tgt, target.K[level], T, terms, T_colour)
             if parts is None:
                 return IcpResult(np.asarray(init_T_target_source, float).copy(), 0.0, np.inf)

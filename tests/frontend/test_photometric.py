@@ -1,6 +1,12 @@
 import numpy as np
 
-from slam.frontend.photometric import joint_align, mean_warped_intensity, warp_intensity
+from slam.frontend.photometric import (
+    colour_pose,
+    joint_align,
+    mean_warped_intensity,
+    photometric_costs,
+    warp_intensity,
+)
 from slam.frontend.rgbd_image import RgbdImage, grey
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from tests.conftest import look_at
@@ -165,3 +171,37 @@ def test_colour_taken_from_another_pose_is_aligned_from_there():
         errors[told] = translation_norm(inv_T(motion) @ res.T_target_source)
     assert errors[False] > 0.003, errors
     assert errors[True] < 3e-4, errors
+
+
+def test_the_images_score_the_true_step_below_a_slide_along_the_wall():
+    """Two views of the textured wall: the photometric cost at the true step is the smallest,
+    a 3 mm slide along the wall (a third of a pixel at level 1, where geometry is blind) costs
+    more, and a larger slide more still; scored on the pixels every step sees."""
+    motion = exp_se3(np.array([0.0, 0.0, np.radians(0.5), 0.01, -0.005, 0.0]))
+    K, source, target = wall_views(motion)
+    slide = np.eye(4)
+    steps = []
+    for d in (0.0, 0.003, 0.01):
+        slide[0, 3] = d
+        steps.append((motion @ slide, None))
+    costs = photometric_costs(
+        source.source(1), target.target(1, geometry=False), target.K[1], steps, 0.06
+    )
+    assert costs[0] < costs[1] < costs[2], costs
+    # a step whose points all leave the target's image scores nothing
+    away = exp_se3(np.array([0.0, 0.0, 0.0, 5.0, 0.0, 0.0]))
+    assert photometric_costs(
+        source.source(1), target.target(1, geometry=False), target.K[1], [(away, None)], 0.06
+    ) == [float("inf")]
+
+
+def test_the_colour_cameras_pose_follows_from_the_depth_cameras():
+    T = exp_se3(np.array([0.1, 0.0, 0.0, 0.02, 0.0, 0.0]))
+    C_s = exp_se3(np.array([0.0, 0.01, 0.0, 0.0, 0.003, 0.0]))
+    C_t = exp_se3(np.array([0.0, 0.0, 0.02, 0.004, 0.0, 0.0]))
+    assert colour_pose(T, None, None) is None
+    np.testing.assert_allclose(colour_pose(T, C_s, None), T @ C_s)
+    np.testing.assert_allclose(colour_pose(T, None, C_t), inv_T(C_t) @ T)
+    # a point in the source colour camera, through its depth camera and the target's
+    p = np.array([0.3, -0.2, 1.5, 1.0])
+    np.testing.assert_allclose(colour_pose(T, C_s, C_t) @ p, inv_T(C_t) @ (T @ (C_s @ p)))

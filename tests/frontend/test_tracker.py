@@ -12,6 +12,7 @@ import pytest
 from slam.config import MappingConfig, TrackingConfig
 from slam.data.base import Frame
 from slam.errors import TrackingError
+from slam.frontend import colour_stages
 from slam.frontend import frame as frame_module
 from slam.frontend.alignment import (
     Attempt,
@@ -480,6 +481,40 @@ def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
     tracker.cfg = TrackingConfig(unusual_departure_factor=3.0, unusual_departure_window=30)
     tracker.commit(att)  # (recorded whether or not the check is on)
     assert tracker.state.recent_accelerations == [0.5] * 29 + [att.acceleration]
+
+
+def test_an_unusual_step_the_images_agree_with_is_not_aligned_again(world, model, monkeypatch):
+    # the images are scored on the way from depth's step to the prediction first (a few ms):
+    # only where depth's end is not the cheapest is the frame aligned again (~100 ms)
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append(args)
+        return align_from(*args, **kwargs)
+
+    monkeypatch.setattr(colour_stages, "align_from", counted)
+    tracker = _tracker_at(world, 9, unusual_departure_factor=3.0)
+    tracker.state.recent_accelerations = [0.5] * 30
+    p = tracker.prepare(world.frame(10))
+
+    def attempt(T_world_cam: np.ndarray):
+        att = tracker.predict(p)
+        att.keep(T_world_cam, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+        att.ok = True
+        tracker.check_motion(att, model)
+        return att
+
+    # the camera really accelerated: the prediction is 6 mm off the true step, depth's estimate
+    # 1 mm; the images agree with depth, which stands without another alignment
+    tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10] @ _motion(0.006, 0.0)
+    near = world.poses[10] @ _motion(0.001, 0.0)
+    att = attempt(near)
+    assert att.T_world_cam is near and not att.status.photometric and calls == []
+    # depth slid 5 mm from a true prediction: the images agree with the prediction's end
+    tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10]
+    att = attempt(world.poses[10] @ _motion(0.005, 0.0))
+    assert len(calls) == 1 and att.status.photometric
+    assert _errors(att.T_world_cam, world.poses[10])[0] < 0.002
 
 
 def test_the_near_cut_is_dropped_where_near_depth_alone_is_blind():

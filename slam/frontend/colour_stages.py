@@ -1,0 +1,225 @@
+"""The stages of tracking where colour checks or refines what depth estimated
+(:meth:`slam.frontend.tracker.Tracker.track`'s stage 4, after the alternatives):
+
+- :func:`check_motion`: a step that breaks the motion pattern is aligned again with colour
+  joining depth;
+- :func:`colour_first_step`: the first step since tracking (re)started, aligned again once the
+  step says where the colour cameras were;
+- :func:`colour_step` (opt-in): the estimate refined against the previous frame's colour.
+
+Each takes the tracking config, the tracker's state and the frame's :class:`Attempt`, and
+updates the attempt; the tracker calls them as its named stages.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from slam.config import TrackingConfig
+from slam.frontend.alignment import Attempt, align_from, colour_prefers, joint_weight
+from slam.frontend.colour_step import StepSettings, step_with_colour
+from slam.frontend.model import TrackingModel
+from slam.frontend.motion import colour_motion
+from slam.frontend.tracker_state import TrackerState
+from slam.geometry import exp_se3, inv_T, log_se3, translation_norm
+
+__all__ = ["check_motion", "colour_first_step", "colour_step", "usual_departure"]
+
+log = logging.getLogger(__name__)
+
+#: points colour is scored at on the way from depth's step to the prediction (both ends included)
+PROBES = 5
+
+
+def check_motion(
+    cfg: TrackingConfig, state: TrackerState, att: Attempt, model: TrackingModel
+) -> None:
+    """Stage 4b: a step that breaks the motion pattern, or that depth's two estimates
+    disagree on, is not accepted on depth alone. The bound is what a hand-held camera can
+    accelerate over the interval (``max_acceleration_m_s2 * dt^2``). When the estimate
+    departs from the constant-velocity prediction by more, or (opt-in,
+    ``tracking.depth_disagreement_check``) frame-to-frame ICP and the model ICP that
+    started from it end further apart (one of them slid), depth may be
+    sliding where its geometry is blind (a wall filling the view, a corridor, a far hall):
+    the frame is aligned again, frame to frame and then to the model, with colour joining
+    depth (where colour is registered), from the prediction, and that estimate is kept when
+    it passes the checks. (Aligning to the model alone, or keeping the colour estimate only
+    where it disagrees with depth by more than the bound, let slides through on the fast
+    wall and corridor rows of the scene matrix; the disagreement of depth's two estimates
+    catches slides the prediction does not: a wall whose frame-to-frame ICP slid 25 mm
+    and the model ICP took back to 7 mm, within the bound of the prediction. See
+    docs/benchmarks.md, session 32.) Opt-in: a departure below the bound but more than
+    ``tracking.unusual_departure_factor`` times this recording's usual one (the median
+    acceleration of the last ``unusual_departure_window`` estimates kept) breaks the
+    recording's own motion pattern (a smooth pan's slides stand out against it). Such a
+    step is first scored by the images on the way from depth's step to the prediction
+    (:func:`~slam.frontend.alignment.colour_prefers` at :func:`_towards_prediction`'s
+    points, a few milliseconds where aligning again costs a hundred): where depth's end is
+    the cheapest, it stands; else the frame is aligned again, and colour's estimate is kept
+    only when it departs less than depth's (a hand-held Kinect's colour moved such steps
+    away: on tum-fr1-xyz depth's end was the cheapest in 11 of its 24 unusual steps; every
+    slide of the wall and desk rows below the bound scored worse than a point nearer the
+    prediction). Every checked frame's departure, of the estimate kept, joins the pattern
+    (:attr:`Attempt.acceleration`)."""
+    if not (att.ok and cfg.motion_check_photometric_weight > 0 and att.photometric == 0):
+        return
+    if not state.velocity_known:  # no motion pattern to break yet
+        return
+    assert att.T_world_cam is not None
+    predicted = att.T_world_prev @ att.velocity
+    bound = cfg.max_acceleration_m_s2 * att.dt_s**2
+    departure = translation_norm(inv_T(predicted) @ att.T_world_cam)
+    att.acceleration = departure / att.dt_s**2
+    disagreement = att.depth_disagreement() if cfg.depth_disagreement_check else 0.0
+    usual = usual_departure(cfg, state.recent_accelerations, att.dt_s)
+    if max(departure, disagreement) <= bound and departure <= usual:
+        return
+    if departure > bound:
+        what = f"its step departs {100 * departure:.1f} cm from the constant-velocity prediction"
+    elif departure > usual:
+        what = (
+            f"its step departs {100 * departure:.1f} cm from the constant-velocity "
+            f"prediction, {departure / usual * cfg.unusual_departure_factor:.1f} times "
+            "the recent frames' median"
+        )
+    else:
+        what = f"depth's two estimates of it are {100 * disagreement:.1f} cm apart"
+    if att.frame.photometric_image(len(cfg.iterations)) is None:
+        _warn_unconfirmed(att, what, bound, "there is no registered colour to check it")
+        return
+    # a step only unusual for this recording: kept on depth where the images agree with it
+    # better than with any point on the way to the prediction, or where colour's estimate
+    # does not return towards the motion pattern
+    unusual_only = max(departure, disagreement) <= bound
+    if unusual_only and colour_prefers(cfg, att, _towards_prediction(att)) == 0:
+        return
+    att.photometric = cfg.motion_check_photometric_weight
+    att.tried = []
+    estimate = align_from(cfg, att, model, att.velocity, False)
+    assert estimate is not None  # nothing was tried since the list was emptied
+    T2, icp2, score2 = estimate
+    colour_departure = translation_norm(inv_T(predicted) @ T2)
+    if unusual_only and colour_departure >= departure:
+        att.photometric = 0.0
+        return
+    if score2 >= cfg.min_overlap and icp2.fitness >= cfg.min_fitness:
+        att.keep(T2, icp2, score2)
+        att.status.photometric = True
+        # the motion pattern is the estimates kept (a slide colour undid is not part of it)
+        att.acceleration = colour_departure / att.dt_s**2
+    else:
+        _warn_unconfirmed(att, what, bound, "aligning with colour failed the checks")
+    att.ok = att.passes(cfg)
+
+
+def _towards_prediction(att: Attempt) -> list[np.ndarray]:
+    """The steps (``T_prev_cur``) from depth's estimate to the prediction, at
+    :data:`PROBES` evenly spaced points of the way (geodesically), depth's first: where colour
+    is cheapest along them says whether it agrees with depth's step. (Both ends can be wrong:
+    a desk whose prediction was 5 mm off and whose depth slid 4 mm scored depth's end better
+    than the prediction's, and a point between them better still.)"""
+    assert att.T_world_cam is not None
+    depth_step = inv_T(att.T_world_prev) @ att.T_world_cam
+    way = log_se3(inv_T(depth_step) @ att.velocity)
+    return [depth_step @ exp_se3(f * way) for f in np.linspace(0.0, 1.0, PROBES)]
+
+
+def colour_first_step(
+    cfg: TrackingConfig, state: TrackerState, att: Attempt, model: TrackingModel
+) -> None:
+    """Stage 4c: the first step since tracking (re)started, with colour taken off the
+    depth's instant (``Frame.color_dt_s``). No motion was known, so the restart frame's
+    colour was taken as seen from its depth camera (and this frame's too). Now the step
+    is estimated, the restart frame's colour camera follows from it (constant velocity
+    over the step): its keyframe's features and colour reference move there. A step
+    aligned with colour is aligned again from the estimate, both colour cameras placed,
+    and kept when it passes the checks. (Colour 15 ms off the depth on a wall panned at
+    90 deg/s moved the first step 32 mm, 10 mm now; RANSAC against the restart keyframe's
+    raw features disagreed with depth, and a fast hall lost four frames: see
+    docs/benchmarks.md, session 20. A second and third pass move the step less each
+    time: the colour images of one step may be a few milliseconds apart.)"""
+    p, prev = att.frame, att.prev_frame
+    if not (att.first_step and att.ok and prev is not None):
+        return
+    if p.frame.color_dt_s == 0.0 and prev.frame.color_dt_s == 0.0:
+        return
+    assert att.T_world_cam is not None
+    step = inv_T(att.T_world_prev) @ att.T_world_cam
+    prev.T_depth_colour = colour_motion(step, att.dt_s, prev.frame.color_dt_s)
+    if prev.T_depth_colour is not None:
+        kf = (
+            state.keyframes[-1] if state.keyframes else None
+        )  # the restart keyframe, as its depth camera saw it
+        if kf is not None and kf.index == prev.index and prev.features is not None:
+            kf.features = prev.features
+        image = prev.photometric_image(len(cfg.iterations))
+        T_colour = att.T_world_prev @ prev.T_depth_colour
+        att.references = [(im, T_colour if im is image else T) for im, T in att.references]
+        state.references = list(att.references)
+    if not joint_weight(cfg, att):
+        return
+    p.T_depth_colour = colour_motion(step, att.dt_s, p.frame.color_dt_s)
+    att.tried = []
+    estimate = align_from(cfg, att, model, step, True)
+    assert estimate is not None  # nothing was tried since the list was emptied
+    if estimate[2] >= cfg.min_overlap and estimate[1].fitness >= cfg.min_fitness:
+        att.keep(*estimate)
+
+
+def colour_step(cfg: TrackingConfig, state: TrackerState, att: Attempt) -> None:
+    """Stage 4d (``tracking.colour_step_weight`` > 0, where colour is registered): the
+    estimate refined against the previous frame's image, depth's estimate as a prior with
+    its information (:func:`slam.frontend.colour_step.colour_refine`), at the weight colour
+    has earned on this recording (:class:`~slam.frontend.colour_step.ColourAgreement`:
+    colour's disagreement with depth where depth is surest, over depth's own). The colour
+    cameras are where :meth:`predict` or, on the first step, :meth:`colour_first_step`
+    placed them. Not under a large motion (a fast step, a gap: the photometric term's basin
+    is a few pixels; on the cabinet, frames 0.66 s apart, its worst step went 29 -> 41 mm).
+    The first step's motion is unknown, not large: its RANSAC seed puts colour in reach."""
+    st, prev = state, att.prev_frame
+    att.T_world_depth = att.T_world_cam
+    if not (cfg.colour_step_weight > 0 and att.ok and prev is not None):
+        return
+    if att.large and not att.first_step:  # fast, or after a gap: beyond colour's basin
+        return
+    levels = len(cfg.iterations)
+    source, target = att.frame.photometric_image(levels), prev.photometric_image(levels)
+    if source is None or target is None:
+        return
+    assert att.T_world_cam is not None
+    depth_step = None  # this frame's depth estimate relative to the previous frame's
+    if st.T_world_prev_depth is not None:
+        depth_step = inv_T(st.T_world_prev_depth) @ att.T_world_cam
+    T_prev_cur = inv_T(att.T_world_prev) @ att.T_world_cam
+    settings = StepSettings(
+        cfg.max_correspondence_m, cfg.huber_delta_m,
+        cfg.colour_step_textured, cfg.colour_step_geometry_stride,
+    )  # fmt: skip
+    refined = step_with_colour(
+        source, target, T_prev_cur, st.colour_agreement,
+        (depth_step, att.f2f), cfg.colour_step_weight, cfg.colour_step_iterations,
+        settings, (att.frame.T_depth_colour, prev.T_depth_colour),
+    )  # fmt: skip
+    if refined is not T_prev_cur:
+        att.T_world_cam = att.T_world_prev @ refined
+
+
+def usual_departure(cfg: TrackingConfig, recent: list[float], dt_s: float) -> float:
+    """The departure from the prediction (m) over ``dt_s`` above which a step breaks this
+    recording's own motion pattern: ``tracking.unusual_departure_factor`` times the
+    median acceleration of the recent estimates' departures (``recent``, m/s^2) (infinite when off, or before
+    a third of the window has been seen since tracking (re)started)."""
+    if cfg.unusual_departure_factor <= 0 or 3 * len(recent) < cfg.unusual_departure_window:
+        return float("inf")
+    return cfg.unusual_departure_factor * float(np.median(recent)) * dt_s**2
+
+
+def _warn_unconfirmed(att: Attempt, what: str, bound_m: float, why: str) -> None:
+    log.warning(
+        "frame %d: %s (a hand-held camera: at most %.1f cm in %.3f s) and %s: kept on depth "
+        "alone (ICP fitness %.2f)",
+        att.frame.index, what, 100 * bound_m, att.dt_s, why,
+        att.icp.fitness if att.icp is not None else 0.0,
+    )  # fmt: skip
