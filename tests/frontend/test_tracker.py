@@ -440,6 +440,16 @@ def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_c
     np.testing.assert_array_equal(att.T_world_cam, world.poses[9])
 
 
+def _checked(tracker: Tracker, p: PreparedFrame, model, T_world_cam: np.ndarray) -> Attempt:
+    """The frame's attempt with ``T_world_cam`` as depth's passing estimate, through
+    ``check_motion``."""
+    att = tracker.predict(p)
+    att.keep(T_world_cam, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+    att.ok = True
+    tracker.check_motion(att, model)
+    return att
+
+
 def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
     # the recording's camera has accelerated 0.5 m/s^2 (median of its recent departures):
     # 3x that over 1/30 s is 1.7 mm, far below what a hand-held camera can (1.1 cm)
@@ -448,12 +458,8 @@ def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
     tracker.state.recent_accelerations = [0.5] * 30
     p = tracker.prepare(world.frame(10))
 
-    def attempt(T_world_cam: np.ndarray):
-        att = tracker.predict(p)
-        att.keep(T_world_cam, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
-        att.ok = True
-        tracker.check_motion(att, model)
-        return att
+    def attempt(T_world_cam: np.ndarray) -> Attempt:
+        return _checked(tracker, p, model, T_world_cam)
 
     # depth slid 5 mm: unusual here, within the bound: colour returns it to the prediction
     slid = world.poses[10] @ _motion(0.005, 0.0)
@@ -497,12 +503,8 @@ def test_an_unusual_step_the_images_agree_with_is_not_aligned_again(world, model
     tracker.state.recent_accelerations = [0.5] * 30
     p = tracker.prepare(world.frame(10))
 
-    def attempt(T_world_cam: np.ndarray):
-        att = tracker.predict(p)
-        att.keep(T_world_cam, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
-        att.ok = True
-        tracker.check_motion(att, model)
-        return att
+    def attempt(T_world_cam: np.ndarray) -> Attempt:
+        return _checked(tracker, p, model, T_world_cam)
 
     # the camera really accelerated: the prediction is 6 mm off the true step, depth's estimate
     # 1 mm; the images agree with depth, which stands without another alignment
