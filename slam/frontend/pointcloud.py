@@ -97,16 +97,25 @@ def downsample_depth(depth_m: np.ndarray, max_diff_m: float = 0.03) -> np.ndarra
     """Half-resolution depth: mean of each 2x2 block's valid values close to its top-left value.
 
     Invalid (0) pixels never contribute, so holes do not pull depth towards the camera.
+    Computed in place on quarter-size buffers: a version stacking the four (H/2, W/2) planes
+    gave the same values 4x slower at 640x480 (its large temporaries are fresh memory).
     """
     h, w = depth_m.shape
-    d = depth_m[: h - h % 2, : w - w % 2].astype(np.float32)
-    blocks = np.stack([d[0::2, 0::2], d[0::2, 1::2], d[1::2, 0::2], d[1::2, 1::2]])
-    ref = blocks[0]
-    use = (blocks > 0) & (np.abs(blocks - ref) < max_diff_m)
-    count = use.sum(axis=0)
-    total = np.where(use, blocks, 0.0).sum(axis=0)
-    out = np.where((ref > 0) & (count > 0), total / np.maximum(count, 1), 0.0)
-    return out.astype(np.float32)
+    d = np.asarray(depth_m[: h - h % 2, : w - w % 2], np.float32)
+    ref = d[0::2, 0::2]
+    total = ref.copy()  # the top-left value counts where it is valid; elsewhere the mean is 0
+    count = np.ones(ref.shape, np.float32)
+    diff = np.empty_like(total)
+    use, valid = np.empty(ref.shape, bool), np.empty(ref.shape, bool)
+    for x in (d[0::2, 1::2], d[1::2, 0::2], d[1::2, 1::2]):
+        np.abs(np.subtract(x, ref, out=diff), out=diff)
+        np.less(diff, np.float32(max_diff_m), out=use)
+        use &= np.greater(x, 0, out=valid)
+        np.add(total, x, out=total, where=use)
+        count += use
+    total /= count
+    total[ref <= 0] = 0.0
+    return total
 
 
 def depth_pyramid(depth_m: np.ndarray, levels: int = 3) -> list[np.ndarray]:

@@ -81,6 +81,27 @@ def test_downsample_ignores_holes():
     assert downsample_depth(d)[0, 0] == 0.0  # top-left invalid -> invalid
 
 
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 40), st.integers(1, 40), st.integers(0, 2**32 - 1), st.floats(0.0, 0.9)
+)
+def test_downsample_is_the_mean_of_each_blocks_close_valid_values(h, w, seed, holes):
+    # per block: the valid values within 3 cm of the top-left one, averaged; a top-left hole
+    # stays a hole (odd last rows and columns are dropped)
+    rng = np.random.default_rng(seed)
+    d = rng.uniform(0.5, 0.56, (h, w)).astype(np.float32)
+    d[rng.random((h, w)) < holes] = 0.0
+    out = downsample_depth(d)
+    assert out.shape == (h // 2, w // 2) and out.dtype == np.float32
+    for i in range(h // 2):
+        for j in range(w // 2):
+            block = d[2 * i : 2 * i + 2, 2 * j : 2 * j + 2].ravel()
+            ref = block[0]
+            use = block[(block > 0) & (np.abs(block - ref) < np.float32(0.03))]
+            expected = use.mean(dtype=np.float64) if ref > 0 else 0.0
+            assert abs(out[i, j] - expected) < 1e-6
+
+
 def test_pyramid_and_scaled_intrinsics_agree():
     depth = np.full((480, 640), 2.5, np.float32)
     pyr = depth_pyramid(depth, 3)
