@@ -82,9 +82,7 @@ def test_downsample_ignores_holes():
 
 
 @settings(max_examples=60, deadline=None)
-@given(
-    st.integers(1, 40), st.integers(1, 40), st.integers(0, 2**32 - 1), st.floats(0.0, 0.9)
-)
+@given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 2**32 - 1), st.floats(0.0, 0.9))
 def test_downsample_is_the_mean_of_each_blocks_close_valid_values(h, w, seed, holes):
     # per block: the valid values within 3 cm of the top-left one, averaged; a top-left hole
     # stays a hole (odd last rows and columns are dropped)
