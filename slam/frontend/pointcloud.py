@@ -114,7 +114,7 @@ def downsample_depth(depth_m: np.ndarray, max_diff_m: float = 0.03) -> np.ndarra
         np.add(total, x, out=total, where=use)
         count += use
     total /= count
-    total[ref <= 0] = 0.0
+    total[~(ref > 0)] = 0.0  # (a NaN top-left too)
     return total
 
 

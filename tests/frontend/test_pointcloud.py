@@ -79,6 +79,8 @@ def test_downsample_ignores_holes():
     assert downsample_depth(d)[0, 0] == 1.0
     d = np.array([[0.0, 2.0], [2.0, 2.0]], np.float32)
     assert downsample_depth(d)[0, 0] == 0.0  # top-left invalid -> invalid
+    d = np.array([[np.nan, 2.0], [2.0, np.nan]], np.float32)
+    assert downsample_depth(d)[0, 0] == 0.0  # a non-finite top-left too
 
 
 @settings(max_examples=60, deadline=None)
