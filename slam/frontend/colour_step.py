@@ -38,7 +38,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slam.frontend.photometric import _MIN_GEO_SCALE_M, _MIN_PHO_SCALE, _term_equations, _Terms
+from slam.frontend.photometric import (
+    _MIN_GEO_SCALE_M,
+    _MIN_PHO_SCALE,
+    _term_equations,
+    _Terms,
+    colour_pose,
+)
 from slam.frontend.rgbd_image import RgbdImage
 from slam.frontend.robust import median
 from slam.frontend.weighted_icp import metric_eigen
@@ -160,11 +166,7 @@ def colour_equations(
     if source.intensity is None or target.intensity is None:
         return None
     T = np.asarray(T_target_source, float)
-    C_src, C_tgt = colour_poses
-    T_colour = None
-    if C_src is not None or C_tgt is not None:
-        T_colour = T if C_src is None else T @ C_src
-        T_colour = T_colour if C_tgt is None else inv_T(C_tgt) @ T_colour
+    T_colour = colour_pose(T, *colour_poses)
     terms = _Terms(
         np.float32(settings.max_correspondence_m),
         settings.huber_delta_m,
