@@ -188,7 +188,9 @@ def _photometric_equations(
     smp = _sample(photo, uf, vf)
     seen = np.isfinite(smp).all(axis=1)  # a warped target (warp_intensity) is NaN where unseen
     if not seen.all():
-        smp, intensity, Qp, inv_z = smp[seen], intensity[seen], Qp[seen], inv_z[seen]
+        i = np.flatnonzero(seen)
+        smp, Qp = np.take(smp, i, axis=0), np.take(Qp, i, axis=0)
+        intensity, inv_z = intensity[i], inv_z[i]
         if len(smp) < 6:
             return np.zeros((6, 6)), np.zeros(6)
     rp = smp[:, 0] - intensity
@@ -261,7 +263,8 @@ def _term_equations(
     zt = tgt.depth[pix]
     keep = zt > 0
     idx, pix, zt = idx[keep], pix[keep], zt[keep]
-    Qi = Q[idx]
+    # rows are gathered with np.take: the same values as fancy indexing, 3x faster on (N, 3)
+    Qi = np.take(Q, idx, axis=0)
     geometric: _NormalEquations | None = None
     if not geometric_term:
         if len(idx) < 6:
@@ -269,24 +272,27 @@ def _term_equations(
         rg = None
     else:
         # geometric term: point-to-plane against the projectively associated target vertex
-        n = tgt.normal[pix]
-        r_g = np.einsum("ij,ij->i", Qi - tgt.vertex[pix], n)
-        geo = np.flatnonzero((np.abs(r_g) < gate) & tgt.has_normal[pix])
+        g = np.take(tgt.geometry, pix, axis=0)
+        n = g[:, 4:7]
+        r_g = np.einsum("ij,ij->i", Qi - g[:, :3], n)
+        geo = np.flatnonzero((np.abs(r_g) < gate) & (g[:, 7] > 0))
         if len(geo) < 6:
             return None
         rg = r_g[geo]
         s_g = robust_scale(rg, terms.min_geo_scale_m)
         wg = (huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
-        geometric = _normal_equations(_cross_jacobian(Qi[geo], n[geo]), wg, rg)
+        J = _cross_jacobian(np.take(Qi, geo, axis=0), np.take(g, geo, axis=0)[:, 4:7])
+        geometric = _normal_equations(J, wg, rg)
     photometric = None
     if terms.photometric_weight > 0 and src.intensity is not None and tgt.photo is not None:
         # photometric term, on source points the target surface does not hide
         vis = np.flatnonzero(np.abs(zt - Qi[:, 2]) < gate)
         if len(vis) >= 6:
             pi = idx[vis]
-            Qp, up, vp, inv_zp = Qi[vis], uf[pi], vf[pi], inv_z[pi]
+            Qp, up, vp, inv_zp = np.take(Qi, vis, axis=0), uf[pi], vf[pi], inv_z[pi]
             if T_colour is not None:  # the colour images were taken from other poses
-                Qp, up, vp, inv_zp = _project(src.points[pi], T_colour, fx, fy, cx, cy)
+                points = np.take(src.points, pi, axis=0)
+                Qp, up, vp, inv_zp = _project(points, T_colour, fx, fy, cx, cy)
             photometric = _photometric_equations(
                 src.intensity[pi], tgt.photo, Qp, up, vp, inv_zp, fx, fy,
                 terms.photometric_weight, terms.min_pho_scale,

@@ -50,10 +50,34 @@ class _SourceLevel:
 class _TargetLevel:
     shape: tuple[int, int]
     depth: np.ndarray  # (H * W,) float32, 0 = none
-    vertex: np.ndarray  # (H * W, 3) float32
-    normal: np.ndarray  # (H * W, 3) float32, 0 where unknown
+    # (H * W, 8) float32 rows: vertex, 0, normal (0 where unknown), 1 where the normal is
+    # known else 0 (one row of 32 bytes: np.take gathers it ~10x faster than two rows of 12)
+    geometry: np.ndarray
     photo: np.ndarray | None  # (H, W, 3) float32: intensity, d/du, d/dv
-    has_normal: np.ndarray  # (H * W,) bool: the normal is known
+
+    @property
+    def vertex(self) -> np.ndarray:
+        """(H * W, 3) float32 (a view)."""
+        return self.geometry[:, :3]
+
+    @property
+    def normal(self) -> np.ndarray:
+        """(H * W, 3) float32, 0 where unknown (a view)."""
+        return self.geometry[:, 4:7]
+
+    @property
+    def has_normal(self) -> np.ndarray:
+        """(H * W,) bool: the normal is known."""
+        return self.geometry[:, 7] > 0
+
+
+def _geometry(vertex: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """:attr:`_TargetLevel.geometry` of (N, 3) vertices and normals."""
+    out = np.zeros((len(vertex), 8), np.float32)
+    out[:, :3] = vertex
+    out[:, 4:7] = normal
+    out[:, 7] = np.any(normal != 0, axis=1)
+    return out
 
 
 def _pixels(depth: np.ndarray, K: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -90,12 +114,10 @@ def _target_level(
     h, w = depth.shape
     z = depth.astype(np.float32)
     if not geometry:
-        empty = np.zeros((0, 3), np.float32)
-        return _TargetLevel((h, w), z.reshape(-1), empty, empty, photo, np.zeros(0, bool))
+        return _TargetLevel((h, w), z.reshape(-1), np.zeros((0, 8), np.float32), photo)
     vertex = vertex_map(z, K)
     normal = normal_map(vertex, f_px=float(K[0, 0])).reshape(-1, 3)
-    has_normal = np.any(normal != 0, axis=1)
-    return _TargetLevel((h, w), z.reshape(-1), vertex.reshape(-1, 3), normal, photo, has_normal)
+    return _TargetLevel((h, w), z.reshape(-1), _geometry(vertex.reshape(-1, 3), normal), photo)
 
 
 class RgbdImage:
@@ -182,9 +204,7 @@ class RgbdImage:
             n = normal.reshape(-1, 3)
             K_odd = np.array([[K[0, 0] / 2, 0.0, (K[0, 2] - 1) / 2],
                               [0.0, K[1, 1] / 2, (K[1, 2] - 1) / 2], [0.0, 0.0, 1.0]])  # fmt: skip
-            level = _TargetLevel(
-                (h, w), np.ascontiguousarray(v[:, 2]), v, n, None, np.any(n != 0, axis=1)
-            )
+            level = _TargetLevel((h, w), np.ascontiguousarray(v[:, 2]), _geometry(v, n), None)
             self._odd = (level, K_odd)
         return self._odd
 
