@@ -33,6 +33,16 @@ def _local_error(G: np.ndarray, E: np.ndarray, ref: int, k: int) -> tuple[float,
     return float(np.linalg.norm(D[:3, 3]) * 1e3), float(np.degrees(np.arccos(cos)))
 
 
+def _odometry_ate(G: np.ndarray, E: np.ndarray) -> float:
+    """RMSE (m) of the positions after the rigid alignment of ``E``'s to ``G``'s (evo's ``-a``;
+    the estimate as tracking kept it, before any loop's correction)."""
+    from slam.frontend.ransac import kabsch
+
+    T = kabsch(E[:, :3, 3], G[:, :3, 3])
+    moved = E[:, :3, 3] @ T[:3, :3].T + T[:3, 3]
+    return float(np.sqrt(np.mean(np.sum((moved - G[:, :3, 3]) ** 2, axis=1))))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sequence", type=Path)
@@ -58,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     est: dict[int, np.ndarray] = {}
     G_of = {}
     current = {"index": -1}
+    coloured: list[int] = []  # frames whose kept pose colour constrained
 
     def err(T: np.ndarray) -> str:
         k = current["index"]
@@ -87,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
         result = system.step(frame)
         if result.T_world_cam is not None:
             est[i] = result.T_world_cam
+        if result.status.photometric:
+            coloured.append(i)
         if first <= i <= last and ref in est:
             s = result.status
             where = err(result.T_world_cam) if result.T_world_cam is not None else "lost"
@@ -96,7 +109,10 @@ def main(argv: list[str] | None = None) -> int:
     G = np.stack([G_of[i] for i in idx])
     inv = np.linalg.inv
     step = np.linalg.norm((inv(inv(G[:-1]) @ G[1:]) @ (inv(E[:-1]) @ E[1:]))[:, :3, 3], axis=1)
-    print(f"{args.sequence.name}: median step error {np.median(step) * 1e3:.2f} mm")
+    print(
+        f"{args.sequence.name}: median step error {np.median(step) * 1e3:.2f} mm, odometry "
+        f"ATE {_odometry_ate(G, E) * 1e3:.2f} mm; colour kept at frames {coloured}"
+    )
     for j in np.argsort(-step)[: args.worst]:
         k, r = j + 1, max(j + 1 - 30, 0)
         b, a = _local_error(G, E, r, k - 1), _local_error(G, E, r, k)
