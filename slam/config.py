@@ -113,23 +113,20 @@ class TrackingConfig:
     # worse beyond their spread (a desk on exact depth, a wall with colour 15 ms off depth;
     # docs/benchmarks.md, session 32)
     depth_disagreement_check: bool = False
-    # opt-in (0 = off): nor a frame whose departure from the prediction, as an acceleration
-    # (departure / dt^2), is more than this many times the median of the last
-    # unusual_departure_window frames' (the recording's own motion pattern, from the
-    # estimates kept: a smooth pan accelerates far less than a hand-held camera can, and
-    # slides below max_acceleration_m_s2 stand out against it; 3: a 3-D Gaussian's
-    # departures pass 3x their median with probability ~1e-4). Such a step is kept on depth
-    # unless colour's estimate returns towards the prediction (on tum-fr1-xyz colour moved
-    # such steps away). At 3 on the scene matrix: desks' odometry 20-70% better, the walls'
-    # worst steps up to 3x smaller, no row worse beyond its spread; but synthetic desks track
-    # at half the speed and tum-fr1-xyz 6% slower (34 of its 790 frames checked, ~100 ms
-    # each): past the speed budget. docs/benchmarks.md, session 33. Such a step is aligned
-    # again only where the images, scored on the way from it to the prediction, do not
-    # prefer depth's end (a few ms: fr1's 24 unusual steps -> 13 alignments; session 34).
-    # Session 36: within the speed budget (fr1 0.994 of the issue's baseline), but two far
-    # halls drift in some runs with it (hall-x2-s0-c15 odometry above 19 mm in 2 of 7 runs,
-    # the default's 11-14 mm): still opt-in
-    unusual_departure_factor: float = 0.0
+    # nor a frame whose departure from the prediction, as an acceleration (departure / dt^2),
+    # is more than this many times the median of the last unusual_departure_window frames'
+    # (0 = off; the recording's own motion pattern, from every estimate kept, aligned with
+    # colour or not: a smooth pan accelerates far less than a hand-held camera can, and slides
+    # below max_acceleration_m_s2 stand out against it; 3: a 3-D Gaussian's departures pass
+    # 3x their median with probability ~1e-4). Such a step is scored by the images on the way
+    # to the prediction first (a few ms), aligned again with colour only where they do not
+    # prefer depth's end, and colour's estimate kept only where it returns towards the
+    # prediction (on tum-fr1-xyz colour moved such steps away). On the scene matrix (session
+    # 37, with colour-aligned frames in the pattern): the halls' odometry and worst steps 1.3-5x
+    # better and their run-to-run spread 2-30x narrower, the desks' odometry 1.3-4.6x better,
+    # the walls' worst steps up to 2x smaller, the real rows unchanged; the fast walls'
+    # odometry within its spread. docs/benchmarks.md, sessions 33-37
+    unusual_departure_factor: float = 3.0
     unusual_departure_window: int = 30
     # geometry is blind when the frame's own depth constrains the pose this many times worse
     # along its weakest direction than along its strongest (standard deviations, rotations as

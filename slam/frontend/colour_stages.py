@@ -50,7 +50,7 @@ def check_motion(
     wall and corridor rows of the scene matrix; the disagreement of depth's two estimates
     catches slides the prediction does not: a wall whose frame-to-frame ICP slid 25 mm
     and the model ICP took back to 7 mm, within the bound of the prediction. See
-    docs/benchmarks.md, session 32.) Opt-in: a departure below the bound but more than
+    docs/benchmarks.md, session 32.) And a departure below the bound but more than
     ``tracking.unusual_departure_factor`` times this recording's usual one (the median
     acceleration of the last ``unusual_departure_window`` estimates kept) breaks the
     recording's own motion pattern (a smooth pan's slides stand out against it). Such a
@@ -61,9 +61,11 @@ def check_motion(
     only when it departs less than depth's (a hand-held Kinect's colour moved such steps
     away: on tum-fr1-xyz depth's end was the cheapest in 11 of its 24 unusual steps; every
     slide of the wall and desk rows below the bound scored worse than a point nearer the
-    prediction). Every checked frame's departure, of the estimate kept, joins the pattern
-    (:attr:`Attempt.acceleration`)."""
-    if not (att.ok and cfg.motion_check_photometric_weight > 0 and att.photometric == 0):
+    prediction). Every frame's departure, of the estimate kept, joins the pattern
+    (:attr:`Attempt.acceleration`), a frame aligned with colour already (its depth blind) too,
+    unchecked: a far hall tracked with colour for 40 frames had no pattern then, and its first
+    depth-only frames slid 12 mm each, below the bound (docs/benchmarks.md, session 37)."""
+    if not (att.ok and cfg.motion_check_photometric_weight > 0):
         return
     if not state.velocity_known:  # no motion pattern to break yet
         return
@@ -72,6 +74,8 @@ def check_motion(
     bound = cfg.max_acceleration_m_s2 * att.dt_s**2
     departure = translation_norm(inv_T(predicted) @ att.T_world_cam)
     att.acceleration = departure / att.dt_s**2
+    if att.photometric != 0:  # aligned with colour already (depth was blind): kept as it is
+        return
     disagreement = att.depth_disagreement() if cfg.depth_disagreement_check else 0.0
     usual = usual_departure(cfg, state.recent_accelerations, att.dt_s)
     if max(departure, disagreement) <= bound and departure <= usual:

@@ -15,11 +15,11 @@ rescued by ORB + RANSAC against the last keyframes.
 4. :meth:`~Tracker.alternatives`: under large motion or failure, other guesses (no motion,
    constant velocity, the best RANSAC pose); the best overlap wins;
    :meth:`~Tracker.check_motion`: an estimate that departs from the prediction by more than a
-   hand-held camera can accelerate is aligned again with colour joining depth (opt-in,
-   ``tracking.unusual_departure_factor``: also one departing several times more than this
-   recording's recent frames did, kept only where colour returns it towards the
-   prediction; ``tracking.depth_disagreement_check``: one whose frame-to-frame and model
-   ICP end far apart); depth slides along a wall filling the view, texture does not;
+   hand-held camera can accelerate is aligned again with colour joining depth (also one
+   departing several times more than this recording's recent frames did,
+   ``tracking.unusual_departure_factor``, kept only where colour returns it towards the
+   prediction; opt-in, ``tracking.depth_disagreement_check``: one whose frame-to-frame and
+   model ICP end far apart); depth slides along a wall filling the view, texture does not;
    :meth:`~Tracker.colour_first_step`: the
    first step, aligned with colour taken off the depth's instant, again once the step gives
    where the colour cameras were; :meth:`~Tracker.colour_step` (opt-in,

@@ -20,7 +20,8 @@ def test_the_usual_departure_is_the_median_acceleration_over_the_interval():
     assert np.isclose(usual_departure(cfg, recent, 0.1), 3.0 * 0.5 * 0.01)
     # before a third of the window is known, or with the check off: no bound
     assert usual_departure(cfg, recent[:9], 0.1) == float("inf")
-    assert usual_departure(TrackingConfig(), recent, 0.1) == float("inf")
+    off = TrackingConfig(unusual_departure_factor=0.0)
+    assert usual_departure(off, recent, 0.1) == float("inf")
 
 
 class _Att:

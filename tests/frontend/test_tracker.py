@@ -474,11 +474,20 @@ def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
     near = world.poses[10] @ _motion(0.002, 0.0)
     att = attempt(near)
     assert not att.status.photometric and att.photometric == 0 and att.T_world_cam is near
-    # before a third of the window is known, or off, depth alone stands
     tracker.state.velocity = inv_T(world.poses[9]) @ world.poses[10]
+    # a frame aligned with colour already (depth was blind) is kept as it is, and its departure
+    # joins the pattern too: a far hall tracked with colour for 40 frames had no pattern, and
+    # its first depth-only frames slid 12 mm unchecked
+    att = tracker.predict(p)
+    att.keep(slid, IcpResult(np.eye(4), 0.9, 0.001), 0.9)
+    att.ok, att.photometric = True, 1.0
+    tracker.check_motion(att, model)
+    assert att.T_world_cam is slid and not att.status.photometric
+    assert att.acceleration == pytest.approx(0.005 * 30**2, rel=1e-6)
+    # before a third of the window is known, or off, depth alone stands
     tracker.state.recent_accelerations = [0.5] * 9
     assert attempt(slid).T_world_cam is slid
-    tracker.cfg = TrackingConfig()  # off by default
+    tracker.cfg = TrackingConfig(unusual_departure_factor=0.0)  # off
     tracker.state.recent_accelerations = [0.5] * 30
     assert attempt(slid).T_world_cam is slid
     # commit records the departure of the estimate kept, the last window of them
