@@ -122,10 +122,11 @@ class TrackingConfig:
     # to the prediction first (a few ms), aligned again with colour only where they do not
     # prefer depth's end, and colour's estimate kept only where it returns towards the
     # prediction (on tum-fr1-xyz colour moved such steps away). On the scene matrix (session
-    # 37, with colour-aligned frames in the pattern): the halls' odometry and worst steps 1.3-5x
-    # better and their run-to-run spread 2-30x narrower, the desks' odometry 1.3-4.6x better,
-    # the walls' worst steps up to 2x smaller, the real rows unchanged; the fast walls'
-    # odometry within its spread. docs/benchmarks.md, sessions 33-37
+    # 37, with colour-aligned frames in the pattern): the halls' worst steps up to 6x smaller
+    # and their runs closer (hall-x1-s0's odometry range over 6 runs 9.4 -> 0.7 mm), the
+    # desks' odometry 1.3-4.6x better, the walls' worst steps up to 2x smaller, the real rows
+    # level, no row worse beyond its spread; tracking + fusion 0.91 (fr1) and 0.97 (demo) of
+    # the issue's baseline. docs/benchmarks.md, sessions 33-37
     unusual_departure_factor: float = 3.0
     unusual_departure_window: int = 30
     # geometry is blind when the frame's own depth constrains the pose this many times worse
