@@ -33,16 +33,6 @@ def _local_error(G: np.ndarray, E: np.ndarray, ref: int, k: int) -> tuple[float,
     return float(np.linalg.norm(D[:3, 3]) * 1e3), float(np.degrees(np.arccos(cos)))
 
 
-def _odometry_ate(G: np.ndarray, E: np.ndarray) -> float:
-    """RMSE (m) of the positions after the rigid alignment of ``E``'s to ``G``'s (evo's ``-a``;
-    the estimate as tracking kept it, before any loop's correction)."""
-    from slam.frontend.ransac import kabsch
-
-    T = kabsch(E[:, :3, 3], G[:, :3, 3])
-    moved = E[:, :3, 3] @ T[:3, :3].T + T[:3, 3]
-    return float(np.sqrt(np.mean(np.sum((moved - G[:, :3, 3]) ** 2, axis=1))))
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sequence", type=Path)
@@ -56,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     import slam
     from slam.frontend import alignment, tracker
     from slam.pipeline import new_system
-    from slam.trajectory import read_tum
+    from slam.tools.eval_metrics import ate
+    from slam.trajectory import Trajectory, read_tum
 
     logging.basicConfig(level=logging.ERROR)
     cfg = slam.load_config(args.config)
@@ -67,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     system = new_system(seq, cfg, None)
     est: dict[int, np.ndarray] = {}
     G_of = {}
+    t_of: dict[int, float] = {}
     current = {"index": -1}
     coloured: list[int] = []  # frames whose kept pose colour constrained
 
@@ -92,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     for i in range(len(seq)):
         frame = seq[i]
         G_of[i] = gt.poses[int(np.argmin(np.abs(gt.timestamps - frame.timestamp)))]
+        t_of[i] = frame.timestamp
         current["index"] = i
         if first <= i <= last:
             print(f"frame {i}")
@@ -109,9 +102,11 @@ def main(argv: list[str] | None = None) -> int:
     G = np.stack([G_of[i] for i in idx])
     inv = np.linalg.inv
     step = np.linalg.norm((inv(inv(G[:-1]) @ G[1:]) @ (inv(E[:-1]) @ E[1:]))[:, :3, 3], axis=1)
+    t = np.array([t_of[i] for i in idx])
+    odometry = ate(Trajectory(t, G), Trajectory(t, E))  # evo's -a: tracking's estimates as kept
     print(
         f"{args.sequence.name}: median step error {np.median(step) * 1e3:.2f} mm, odometry "
-        f"ATE {_odometry_ate(G, E) * 1e3:.2f} mm; colour kept at frames {coloured}"
+        f"ATE {odometry.rmse * 1e3:.2f} mm; colour kept at frames {coloured}"
     )
     for j in np.argsort(-step)[: args.worst]:
         k, r = j + 1, max(j + 1 - 30, 0)
