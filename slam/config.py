@@ -126,7 +126,7 @@ class TrackingConfig:
     # and their runs closer (hall-x1-s0's odometry range over 6 runs 9.4 -> 0.7 mm), the
     # desks' odometry 1.3-4.6x better, the walls' worst steps up to 2x smaller, the real rows
     # level, no row worse beyond its spread; tracking + fusion 0.91 (fr1) and 0.97 (demo) of
-    # the issue's baseline, but synthetic desks ~0.55x the check off (it aligns again with
+    # the issue's baseline, but synthetic desks 0.5-0.75x the check off (it aligns again with
     # colour on ~40% of their frames). docs/benchmarks.md, sessions 33-38
     unusual_departure_factor: float = 3.0
     unusual_departure_window: int = 30
