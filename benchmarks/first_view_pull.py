@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 from common import machine, write_result
+from self_render_bias import icp_pull
 
 from slam.config import MappingConfig
-from slam.frontend.icp import projective_icp
 from slam.geometry import inv_T
 from slam.mapping.tsdf import TSDFVolume
 from slam.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
@@ -31,8 +31,7 @@ def pull(volume: TSDFVolume, depth_m: np.ndarray, K: np.ndarray, T: np.ndarray) 
     """Where the rendering from ``T`` puts the view, ``T_cam_render``."""
     h, w = depth_m.shape
     render = volume.raycast(K, w, h, T, False, False, frustum_depth_m=depth_m)
-    icp = projective_icp(depth_m, render.depth_m, K, np.eye(4), [10, 10, 10], 4.0, 0.03, 0.02)
-    return icp.T_target_source
+    return icp_pull(depth_m, render.depth_m, K)
 
 
 def fused(depth_m: np.ndarray, color: np.ndarray, K: np.ndarray, T: np.ndarray) -> TSDFVolume:

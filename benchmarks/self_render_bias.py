@@ -34,9 +34,15 @@ def depth_edges(depth_m: np.ndarray, jump_m: float, radius_px: int) -> np.ndarra
     return cv2.dilate(edge.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
 
 
-def shift_mm(source: np.ndarray, target: np.ndarray, K: np.ndarray) -> list[float]:
+def icp_pull(source: np.ndarray, target: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """``T_target_source`` by projective point-to-plane ICP from the identity: how far the
+    ``target`` rendering pulls the ``source`` depth (also used by ``first_view_pull.py``)."""
     icp = projective_icp(source, target, K, np.eye(4), [10, 10, 10], 4.0, 0.03, 0.02)
-    return [round(float(v) * 1e3, 2) for v in icp.T_target_source[:3, 3]]
+    return icp.T_target_source
+
+
+def shift_mm(source: np.ndarray, target: np.ndarray, K: np.ndarray) -> list[float]:
+    return [round(float(v) * 1e3, 2) for v in icp_pull(source, target, K)[:3, 3]]
 
 
 def main() -> None:
