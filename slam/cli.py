@@ -306,6 +306,23 @@ def synth(
             "fr1/fr2's Kinect: up to 17), as rgb.txt says.",
         ),
     ] = 0.0,
+    handheld: Annotated[
+        str,
+        typer.Option(
+            "--handheld",
+            help="Add a recorded hand's motion to the camera path (TUM motion capture: "
+            "fr1_360, fr1_desk2, fr1_plant, fr1_room, fr1_teddy).",
+        ),
+    ] = "",
+    kinect: Annotated[
+        bool,
+        typer.Option(
+            "--kinect",
+            help="Take the images as a hand-held Kinect v1 does: rolling-shutter, motion-blurred "
+            "colour under auto exposure; depth with projector shadows, ragged edges and "
+            "correlated noise.",
+        ),
+    ] = False,
 ) -> None:
     """Render a synthetic RGB-D sequence with exact ground truth (TUM layout + calibration.yaml)."""
     from slam.synthetic import SynthConfig, generate_sequence
@@ -321,6 +338,8 @@ def synth(
         noise=noise,
         drift_bias=drift_bias,
         color_offset_ms=color_offset_ms,
+        handheld=handheld,
+        kinect=kinect,
     )
     with progress_bar() as bar:
         task = bar.add_task("rendering", total=frames)

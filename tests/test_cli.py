@@ -105,6 +105,16 @@ def test_synth_takes_colour_off_the_depths_instant(tmp_path):
     assert res.exit_code != 0 and "color_offset_ms" in res.output
 
 
+def test_synth_records_a_handheld_kinect(tmp_path):
+    seq = tmp_path / "seq"
+    args = ["synth", str(seq), "--frames", "3", "--scene", "desk", "--handheld", "fr1_desk2"]
+    res = runner.invoke(app, [*args, "--kinect"])
+    assert res.exit_code == 0, res.output
+    assert json.loads((seq / ".complete").read_text())["kinect"] is True
+    res = runner.invoke(app, ["synth", str(tmp_path / "x"), "--handheld", "fr9_nowhere"])
+    assert res.exit_code != 0 and "fr1_desk2" in res.output  # the recordings are named
+
+
 def test_run_writes_the_run_folder(tmp_path):
     from slam.synthetic import SynthConfig, generate_sequence
 

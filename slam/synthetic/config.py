@@ -81,6 +81,13 @@ class SynthConfig:
     camera at its own steady rate, with 2 ms of jitter: TUM fr1 / fr2's Kinect, up to 17 ms
     apart), from the camera's pose at that time, and ``rgb.txt`` says when; 0: the two at the
     same instant.
+
+    ``handheld``: a recorded hand-held camera's motion (one of
+    :data:`slam.synthetic.handheld.RECORDINGS`, from ``seed * 7`` seconds into it) is added to
+    the path, its jerks and fast turns as recorded; "" for the path alone. ``kinect``: the
+    images are taken as a hand-held Kinect v1 takes them (:mod:`slam.synthetic.kinect`:
+    rolling shutter, motion blur, auto exposure, projector shadows, ragged edges, correlated
+    depth noise, dropouts on fast motion and dark surfaces).
     """
 
     frames: int = 300
@@ -100,6 +107,8 @@ class SynthConfig:
     scene: str = "room"
     speed: float = 1.0
     color_offset_ms: float = 0.0
+    handheld: str = ""
+    kinect: bool = False
 
     @classmethod
     def half_resolution(cls, **overrides) -> SynthConfig:
@@ -136,4 +145,8 @@ class SynthConfig:
                 f"({500 / FPS:.1f} ms: each colour image pairs with its own depth image), got "
                 f"{self.color_offset_ms}"
             )
+        if self.handheld:
+            from slam.synthetic.handheld import recording
+
+            recording(self.handheld)  # raises ConfigError naming the recordings
         self.calibration()

@@ -7,11 +7,15 @@ import logging
 import numpy as np
 
 from slam.synthetic.config import FPS, SynthConfig
+from slam.synthetic.handheld import hand_motion
 from slam.synthetic.kinds import kind_poses
 from slam.synthetic.shapes import look_rotation, poses_from
 from slam.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
+
+#: Seconds into the recorded hand's motion (``SynthConfig.handheld``) per seed.
+HANDHELD_START_S = 7.0
 
 # ------------------------------------------------------------------------------------------------
 # trajectory
@@ -24,12 +28,23 @@ def make_trajectory(cfg: SynthConfig) -> Trajectory:
     height, looking outwards and ~20 deg down at the furniture along the walls, with sinusoidal
     wobble of speed, height, yaw, pitch and roll (phases from the seed). ``loop=True``: one full
     closed turn (infinitely smooth, the pose after the last frame is the first one again).
-    ``loop=False``: an open 0.55-turn sweep.
+    ``loop=False``: an open 0.55-turn sweep. Other scene kinds follow their own paths
+    (:func:`slam.synthetic.kinds.kind_poses`); ``cfg.handheld`` adds a recorded hand's motion
+    (:func:`slam.synthetic.handheld.hand_motion`) to any of them.
     """
     cfg.validate()
     n = int(cfg.frames)
-    if cfg.scene != "room":
-        return Trajectory(np.arange(n) / FPS, kind_poses(cfg))
+    t = np.arange(n) / FPS
+    poses = kind_poses(cfg) if cfg.scene != "room" else _room_poses(cfg)
+    if cfg.handheld:  # the recorded hand's motion, in the camera frame
+        hand = hand_motion(cfg.handheld, t, HANDHELD_START_S * int(cfg.seed))
+        poses = np.einsum("nij,njk->nik", poses, hand)
+    return Trajectory(t, poses)
+
+
+def _room_poses(cfg: SynthConfig) -> np.ndarray:
+    """(frames, 4, 4) ``T_world_cam`` of the furnished room's loop (see :func:`make_trajectory`)."""
+    n = int(cfg.frames)
     rng = np.random.default_rng([int(cfg.seed), 0x7A7])
     ph = rng.uniform(0, 2 * np.pi, 8)
     amp = rng.uniform(0.7, 1.0, 6)
@@ -47,5 +62,4 @@ def make_trajectory(cfg: SynthConfig) -> Trajectory:
     forward = np.stack(
         [np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)], axis=1
     )
-    poses = poses_from(np.stack([x, y, z], axis=1), look_rotation(forward, roll))
-    return Trajectory(np.arange(n) / FPS, poses)
+    return poses_from(np.stack([x, y, z], axis=1), look_rotation(forward, roll))

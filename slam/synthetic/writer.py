@@ -20,12 +20,10 @@ import open3d as o3d
 from slam.errors import DatasetError
 from slam.geometry import exp_se3, inv_T, log_se3
 from slam.synthetic.config import SynthConfig
+from slam.synthetic.kinect import SensorMotion, exposure_gains
 from slam.synthetic.render import SynthScene, build_scene, render_frame
 from slam.synthetic.trajectory import make_trajectory
 from slam.trajectory import Trajectory, atomic_write_text, write_tum
-
-log = logging.getLogger(__name__)
-
 
 log = logging.getLogger(__name__)
 
@@ -163,14 +161,16 @@ def _render_images(
     """Every frame's colour (at its own instant, ``color_dt_s`` off the depth's) and depth
     written as PNGs under ``out/rgb`` and ``out/depth``; returns the seconds spent rendering."""
     color_rng = np.random.default_rng([int(cfg.seed), 2])  # the depth's noise stays the same
+    motions = _sensor_motions(traj, cfg)
     t_render = 0.0
     pending: list[Future] = []
     with ThreadPoolExecutor(max_workers=2) as pool:  # PNG encoding overlaps with rendering
         for i, T in enumerate(traj.poses):
             t1 = time.perf_counter()
-            color, depth = render_frame(scene, T, cfg, rng)
+            color, depth = render_frame(scene, T, cfg, rng, motions[i])
             if color_dt_s[i] != 0.0:  # the colour camera's own instant
-                color, _ = render_frame(scene, _pose_at(traj, i, color_dt_s[i]), cfg, color_rng)
+                T_colour = _pose_at(traj, i, color_dt_s[i])
+                color, _ = render_frame(scene, T_colour, cfg, color_rng, motions[i])
             t_render += time.perf_counter() - t1
             d16 = np.clip(np.round(depth * cfg.depth_scale), 0, 65535).astype(np.uint16)
             pending.append(pool.submit(_imwrite, out / "rgb" / names[i], color[..., ::-1].copy()))
@@ -184,6 +184,25 @@ def _render_images(
         for fut in pending:
             fut.result()
     return t_render
+
+
+def _sensor_motions(traj: Trajectory, cfg: SynthConfig) -> list[SensorMotion | None]:
+    """Each frame's motion as the Kinect model needs it (``cfg.kinect``; else None): the twist
+    per second from the frame before to the frame after (one-sided at the ends) and the
+    exposure gain at the frame's time."""
+    n = len(traj)
+    if not cfg.kinect:
+        return [None] * n
+    gains = exposure_gains(int(cfg.seed), traj.timestamps)
+    out: list[SensorMotion | None] = []
+    for i in range(n):
+        a, b = max(i - 1, 0), min(i + 1, n - 1)
+        twist = np.zeros(6)
+        if b > a:
+            step = inv_T(traj.poses[a]) @ traj.poses[b]
+            twist = log_se3(step) / (traj.timestamps[b] - traj.timestamps[a])
+        out.append(SensorMotion(twist, float(gains[i])))
+    return out
 
 
 def _write_lists(out: Path, traj: Trajectory, color_dt_s: np.ndarray, names: list[str]) -> None:
