@@ -12,8 +12,11 @@ source tree, e.g. a worktree of main, so old and new run the very same sequences
 records odometry and final ATE (RMSE, SE(3)-aligned), the per-frame step error of odometry
 (translation error of each frame-to-frame motion against ground truth: median and worst, and
 their ratio), lost frames, loops and fps. One row per kind is also rendered exact (no sensor
-noise: ``EXACT``) and with colour not synchronised with depth (``UNSYNCED``), and each real sequence recorded at video rate runs again on every third
-frame (``-x3``: real motion three times as fast). Synthetic sequences are generated once into the cache
+noise: ``EXACT``), with colour not synchronised with depth (``UNSYNCED``), and as a hand-held
+Kinect v1 records it (``HANDHELD``: a recorded hand's motion, rolling shutter, blur, exposure,
+Kinect depth), and each real sequence recorded at video rate runs again on every third frame
+(``-x3``: real motion three times as fast). ``colour_frames`` counts the frames colour
+joined depth in (a check fired, or depth was blind). Synthetic sequences are generated once into the cache
 folder (``$SLAM_CACHE_DIR``/matrix). Writes ``benchmarks/results/matrix[-TAG].json`` and prints a
 Markdown table.
 
@@ -51,6 +54,16 @@ EXACT = tuple((kind, 2.0, 0) for kind in KINDS) + (("corridor", 2.0, 1),)
 #: per kind, seed 0: (kind, speed, seed); row names end in ``-c<ms>``.
 UNSYNCED = tuple((kind, 2.0, 0) for kind in KINDS)
 UNSYNCED_MS = 15.0
+#: Rows that move and look like a hand-held Kinect v1 (``SynthConfig.handheld`` and
+#: ``kinect``: a recorded hand's motion on the kind's path; rolling shutter, motion blur, auto
+#: exposure, projector shadows, ragged edges, correlated depth noise; colour UNSYNCED_MS off
+#: depth): the real conditions at every scene kind. Kind -> recording; seeds start 7 s apart
+#: in it. Row names: ``<kind>-hh-s<seed>``.
+HANDHELD = {
+    "room": "fr1_room", "wall": "fr1_360", "corridor": "fr1_teddy", "hall": "fr1_plant",
+    "desk": "fr1_desk2",
+}  # fmt: skip
+HANDHELD_SEEDS = (0, 1)
 FRAMES = 240
 #: Real sequences recorded at video rate run a second time on every REAL_STRIDE-th frame.
 REAL_STRIDE = 3
@@ -75,24 +88,29 @@ def synthetic_rows(
     only: str = "",
     unsynced=(),
     drift_bias: float = 0.0,
+    handheld=(),
 ) -> list[Row]:
     """Every kind x speed x seed, then the ``exact`` (kind, speed, seed) rows without noise and
     the ``unsynced`` ones with colour taken up to ``UNSYNCED_MS`` off the depth; ``only``:
     comma-separated substrings of the row names to keep (the others are not generated);
     ``drift_bias``: every row's depth distorted radially, as an uncalibrated Kinect's
-    (``SynthConfig.drift_bias``; the names end in ``-d`` and the bias in thousandths)."""
+    (``SynthConfig.drift_bias``; the names end in ``-d`` and the bias in thousandths);
+    ``handheld``: (kind, seed) rows as a hand-held Kinect v1 records them (:data:`HANDHELD`)."""
     from slam.demo import cache_dir
     from slam.synthetic import SynthConfig, generate_sequence, is_complete
 
     combos = [(k, sp, se, True, 0.0) for k in kinds for sp in speeds for se in seeds]
     combos += [(k, sp, se, False, 0.0) for k, sp, se in exact]
     combos += [(k, sp, se, True, UNSYNCED_MS) for k, sp, se in unsynced]
+    combos += [(k, 1.0, se, True, UNSYNCED_MS, HANDHELD[k]) for k, se in handheld]
     rows = []
-    for kind, speed, seed, noise, offset_ms in combos:
-        name = (
-            f"{kind}-x{speed:g}-s{seed}" + ("-half" if half else "") + ("" if noise else "-exact")
-        )
-        name += f"-c{offset_ms:g}" if offset_ms else ""
+    for kind, speed, seed, noise, offset_ms, *recorded in combos:
+        hand = recorded[0] if recorded else ""
+        if hand:
+            name = f"{kind}-hh-s{seed}" + ("-half" if half else "")
+        else:
+            name = f"{kind}-x{speed:g}-s{seed}" + ("-half" if half else "")
+            name += ("" if noise else "-exact") + (f"-c{offset_ms:g}" if offset_ms else "")
         name += f"-d{1000 * drift_bias:g}" if drift_bias else ""
         if only and not any(s in name for s in only.split(",")):
             continue
@@ -100,6 +118,7 @@ def synthetic_rows(
         kw["noise"] = noise
         kw["color_offset_ms"] = offset_ms
         kw["drift_bias"] = drift_bias
+        kw.update(handheld=hand, kinect=bool(hand))
         cfg = SynthConfig.half_resolution(**kw) if half else SynthConfig(**kw)
         # v2 of the unsynchronised rows: the colour camera at its own steady rate (v1 drew
         # each frame's offset independently)
@@ -194,6 +213,7 @@ out.update(
     step_err_max_m=float(err.max()) if len(err) else None,
     step_err_worst_frame=int(np.flatnonzero(ok)[worst + 1]) if len(err) else None,
     true_step_median_m=float(np.median(true_step)) if len(err) else None,
+    colour_frames=sum(1 for s in res.tracking if getattr(s, "photometric", False)),
 )
 print(json.dumps(out))
 """
@@ -240,12 +260,12 @@ def _f(v, scale=1.0, fmt="{:.4f}") -> str:
 def table(rows: dict[str, dict]) -> str:
     head = (
         "| row | odometry ATE m | final ATE m | step error median / worst mm (ratio) "
-        "| lost | loops | fps |\n|---|---|---|---|---|---|---|\n"
+        "| lost | colour | loops | fps |\n|---|---|---|---|---|---|---|---|\n"
     )
     lines = []
     for name, r in rows.items():
         if "error" in r:
-            lines.append(f"| {name} | failed: {r['error']} | | | | | |")
+            lines.append(f"| {name} | failed: {r['error']} | | | | | | |")
             continue
         steps = (
             f"{_f(r.get('step_err_median_m'), 1e3, '{:.1f}')} / "
@@ -254,7 +274,8 @@ def table(rows: dict[str, dict]) -> str:
         )
         lines.append(
             f"| {name} | {_f(r.get('ate_rmse_odometry_m'))} | {_f(r.get('ate_rmse_m'))} | {steps} "
-            f"| {r.get('tracking_failures')} | {r.get('loops_accepted')} "
+            f"| {r.get('tracking_failures')} | {r.get('colour_frames', '-')} "
+            f"| {r.get('loops_accepted')} "
             f"| {_f(r.get('fps'), 1, '{:.1f}')} |"
         )
     return head + "\n".join(lines) + "\n"
@@ -330,6 +351,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--no-unsynced", action="store_true", help="without the unsynchronised-colour rows"
     )
+    ap.add_argument(
+        "--no-handheld", action="store_true", help="without the hand-held Kinect rows"
+    )
     ap.add_argument("--only", default="", help="comma-separated substrings: run matching rows")
     ap.add_argument(
         "--drift-bias", type=float, default=0.0,
@@ -363,6 +387,9 @@ def main(argv: list[str] | None = None) -> int:
             if args.no_unsynced
             else [e for e in UNSYNCED if e[0] in args.kinds.split(",")],
             drift_bias=args.drift_bias,
+            handheld=()
+            if args.no_handheld
+            else [(k, se) for k in args.kinds.split(",") if k in HANDHELD for se in HANDHELD_SEEDS],
         )
         rows = ([] if args.no_real else real_rows()) + rows
     if args.only:

@@ -159,6 +159,7 @@ class RunMetrics:
     stage_ms_total: dict[str, float] = field(default_factory=dict)
     tracking_failures: int = 0
     tracking_paths: dict[str, int] = field(default_factory=dict)
+    colour_frames: int = 0  # tracked frames whose pose colour constrained with depth
     keyframes: int = 0
     submaps: int = 0
     loops_accepted: int = 0

@@ -92,6 +92,7 @@ def run_metrics(
         },
         tracking_failures=len(lost),
         tracking_paths=dict(Counter(s.path for s in statuses)),
+        colour_frames=sum(1 for s in tracked if s.photometric),
         keyframes=keyframes,
         submaps=submaps,
         loops_accepted=closer.loops_accepted,

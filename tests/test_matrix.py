@@ -41,6 +41,7 @@ def test_the_small_matrix_runs_and_the_wall_does_not_slide(tmp_path, monkeypatch
     # depth alone slid 4.7 cm a frame (median; odometry ATE 0.21 m); colour holds it
     assert wall["ate_rmse_odometry_m"] < 0.1  # 0.044 m: the first frames, from rest, still slip
     assert wall["step_err_median_m"] < 0.005
+    assert wall["colour_frames"] > 20  # depth is blind along the wall: colour holds it
     assert "| wall-x1-s0-half |" in capsys.readouterr().out
     # --compare reads two result files and counts the rows that got worse
     text, worse = matrix.compare(json.loads(out.read_text()), json.loads(out.read_text()))
@@ -93,3 +94,13 @@ def test_compare_judges_a_change_by_the_spread_measured_in_other_runs():
     assert spreads["hall"]["ate_rmse_odometry_m"] == 0.009
     text, worse = matrix.compare(old, new, matrix.measured_spreads([{"rows": narrow}]))
     assert worse == 1 and text.count("**worse**") == 1  # the worst step's 4 mm
+
+
+def test_the_handheld_rows_are_recorded_as_a_handheld_kinect(tmp_path, monkeypatch):
+    monkeypatch.setenv("SLAM_CACHE_DIR", str(tmp_path / "cache"))
+    matrix = _load("matrix")
+    rows = matrix.synthetic_rows(4, (), (), (), half=True, handheld=[("desk", 1)])
+    assert [r.name for r in rows] == ["desk-hh-s1-half"]
+    made = json.loads((rows[0].path / ".complete").read_text())
+    assert made["handheld"] == matrix.HANDHELD["desk"] and made["kinect"] is True
+    assert made["color_offset_ms"] == matrix.UNSYNCED_MS and made["seed"] == 1
