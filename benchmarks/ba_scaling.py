@@ -234,7 +234,7 @@ def main() -> None:
     parser.add_argument(
         "--accuracy",
         nargs="*",
-        default=["tum-fr1-xyz", "7scenes-1000", "demo", "demo-drift", "tum-fr3-cabinet-kf58"],
+        default=["tum-fr1-xyz", "7scenes-300", "demo", "demo-drift", "tum-fr3-cabinet-kf58"],
     )
     parser.add_argument("--skip-synthetic", action="store_true")
     parser.add_argument("--skip-real", action="store_true")

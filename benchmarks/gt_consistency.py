@@ -4,7 +4,7 @@ SLAM pipeline: for frame pairs ``gap`` frames apart, ICP between the two raw dep
 pose the depth data support; compare it with the ground truth's.
 
     python benchmarks/gt_consistency.py demo
-    python benchmarks/gt_consistency.py 7scenes-1000
+    python benchmarks/gt_consistency.py 7scenes-300
 
 With exact ground truth (the synthetic demo) the two agree to a fraction of a millimetre; a
 translation ratio away from 1 with rotations in agreement means the ground truth's scale

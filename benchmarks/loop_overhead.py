@@ -4,7 +4,7 @@ pairwise ratios (whole-run time on a 2-core machine varies by about +-10% from r
 one pair is not a measurement).
 
     python benchmarks/loop_overhead.py demo-drift --repeats 3
-    python benchmarks/loop_overhead.py 7scenes-1000 --repeats 2
+    python benchmarks/loop_overhead.py 7scenes-300 --repeats 2
 
 Writes benchmarks/results/loop-overhead-<sequence>.json. Nothing else should run meanwhile.
 """

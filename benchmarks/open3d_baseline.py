@@ -1,7 +1,7 @@
 """Open3D's own dense RGB-D SLAM (``open3d.t.pipelines.slam.Model``: frame-to-model tracking,
 TSDF voxel block grid, no loop closure) on one sequence, for comparison. Writes JSON.
 
-    python benchmarks/open3d_baseline.py 7scenes-1000 [--voxel 0.01]
+    python benchmarks/open3d_baseline.py 7scenes-300 [--voxel 0.01]
 
 Follows Open3D's example ``t_reconstruction_system/dense_slam.py`` (depth_max 3.0,
 depth_diff 0.07, truncation 8 voxels), with voxel size 1 cm. Frames are read with this project's

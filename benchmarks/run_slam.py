@@ -1,7 +1,7 @@
 """Benchmark this project's pipeline on one sequence (default config) and write JSON.
 
     python benchmarks/run_slam.py demo
-    python benchmarks/run_slam.py 7scenes-1000
+    python benchmarks/run_slam.py 7scenes-300
 
 Writes benchmarks/results/slam-<sequence>.json with ATE, fps and peak memory. Run one sequence
 per process so the peak memory belongs to that sequence.

@@ -2,7 +2,7 @@
 
     python scripts/sweep_voxel_size.py                         # small synthetic sequence, ~20 s
     python scripts/sweep_voxel_size.py --voxel 0.005 0.01 0.015 0.02 --frames 100
-    python scripts/sweep_voxel_size.py --sequence ../shared/datasets/7scenes-1000 \\
+    python scripts/sweep_voxel_size.py --sequence ../shared/datasets/7scenes-300 \\
         --frames 300 --csv sweep.csv --plot sweep.png
 
 Without ``--sequence`` it renders a synthetic loop sequence with exact ground truth (320x240,

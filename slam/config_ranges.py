@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 #: spill over are counted but not written, and if one of them spans several fragments (a large
 #: block, or one near the camera) the range map is built from uninitialised memory: a
 #: segmentation fault, a hang or silent corruption. Measured on tum-fr1-xyz,
-#: tum-fr3-cabinet-kf58 and 7scenes-1000 (40 frames each, the fragment count of every ray-cast
+#: tum-fr3-cabinet-kf58 and 7scenes-300 (40 frames each, the fragment count of every ray-cast
 #: replayed): uninitialised fragments from 0.03 m voxels up in two of the three sequences, none at
 #: 0.01 and 0.02 m; crashes at 0.1 m (cabinet, every run), 0.15 (7-Scenes), 0.2-0.5 m (fr1).
 MAX_BLOCK_SIZE_M = 0.16

@@ -8,54 +8,42 @@ from tests.conftest import shared_sequence
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 
-def test_7scenes_revisit_is_closed():
-    """The whole 1000 frames: no tracking failure, the revisit of frames ~225-275 at ~925-950 is
-    detected and accepted, and the corrected trajectory closes it.
+def test_7scenes_300_tracks_without_failure():
+    """The whole 300 frames of 7scenes-300 (hand-held Kinect v1, 2.1 m of path, no revisit):
+    every frame tracked with no failure and no relocalisation, the odometry within a few
+    centimetres of the ground truth, and loop handling doing no harm.
 
-    "Closes" is checked against the loop measurements themselves: the revisit's relative poses
-    (RANSAC + ICP between the two keyframes' depth) are 5-10 cm away from odometry and within
-    about a centimetre after correction. Against 7-Scenes' ground truth the corrected ATE came
-    out 0.0511 vs 0.0536 m and 0.0545 vs 0.0540 m in two runs: the ground truth itself
-    disagrees with these loop measurements by 2-12 cm (docs/benchmarks.md, "7-Scenes: what
-    limits the ATE there"), so it cannot rank trajectories that differ by a few millimetres; the
-    ATE is only held to not getting worse beyond that. Since ICP uses the near depth only
-    (odometry 0.0375-0.0377 m), the pose graph reads 0.0396-0.0399 m and bundle adjustment
-    0.0367-0.0379 m."""
+    Measured (two runs, 2 cores): odometry ATE 0.0265 m, RPE 3.2 mm / 0.14 deg per frame, drift
+    2.2 %; ICP on 298 frames. 0 of 11 loop candidates accepted (their keyframes 0.36-0.57 m and
+    19-29 deg apart: partial overlap, not a revisit), bundle adjustment skipped (too few
+    landmarks: colour is not registered to depth here), so the final trajectory is the
+    odometry. The ground truth is KinectFusion output good to about a centimetre, so the bounds
+    are loose; they catch a broken tracker (lost frames, centimetres of extra drift), not
+    millimetres. A loop that is accepted must agree with the ground truth's relative pose to
+    within that accuracy, and must not make the trajectory worse beyond it."""
     import numpy as np
 
     from slam.geometry import inv_T
 
-    seq = slam.open_sequence(shared_sequence("7scenes-1000"))
+    seq = slam.open_sequence(shared_sequence("7scenes-300"))
+    assert len(seq) == 300
     res = slam.run(seq)
     m = res.metrics
-    assert m["tracking_failures"] == 0
-    assert m["ate_rmse_odometry_m"] < 0.05, m["ate_rmse_odometry_m"]  # measured 0.0375-0.0377
-    revisits = [
-        c
-        for c in res.loop_closer.loops_json()["candidates"]
-        if c["accepted"] and 900 <= c["query_frame"] <= 1000 and 200 <= c["match_frame"] <= 320
-    ]
-    assert revisits, [
-        (c["query_frame"], c["match_frame"], c["reason"]) for c in res.loop_closer.loops_json()["candidates"]
-    ]
-
-    def disagreement_m(poses: np.ndarray) -> np.ndarray:
-        out = []
-        for c in revisits:
-            T_match_query = inv_T(poses[c["match_frame"]]) @ poses[c["query_frame"]]
-            d = inv_T(np.asarray(c["T_match_query"])) @ T_match_query
-            out.append(np.linalg.norm(d[:3, 3]))
-        return np.array(out)
-
-    before = disagreement_m(res.odometry.poses)  # frame index = row: every frame is tracked
-    after = disagreement_m(res.pose_graph.poses)
-    assert np.median(before) > 0.03, before  # measured 5-10 cm: odometry has drifted
-    assert np.median(after) < 0.015, after  # measured 0.2-1.5 cm
-    # the ground truth cannot rank trajectories a few millimetres apart (see above)
-    assert m["ate_rmse_pose_graph_m"] < m["ate_rmse_odometry_m"] + 0.004, m
-    # bundle adjustment then moves the keyframes by the ORB evidence (colour not registered to
-    # depth here, so its depth term is weak): it must not make the trajectory worse
-    assert m["ate_rmse_m"] <= m["ate_rmse_pose_graph_m"] + 0.001, m
+    assert m["frames"] == m["frames_in_trajectory"] == m["matched_poses"] == 300, m
+    assert m["tracking_failures"] == 0 and m["relocalisations"] == 0, m
+    assert m["ate_rmse_odometry_m"] < 0.05, m["ate_rmse_odometry_m"]  # measured 0.0265
+    assert m["rpe_trans_rmse_m"] < 0.01, m["rpe_trans_rmse_m"]  # measured 0.0032
+    assert m["ate_rmse_m"] < 0.05, m["ate_rmse_m"]
+    # the ground truth cannot rank trajectories a few millimetres apart
+    assert m["ate_rmse_m"] <= m["ate_rmse_odometry_m"] + 0.004, m
+    gt = seq.ground_truth.poses
+    assert len(gt) == 300  # one per frame, in frame order
+    for c in res.loop_closer.loops_json()["candidates"]:
+        if not c["accepted"]:
+            continue
+        T_gt = inv_T(gt[c["match_frame"]]) @ gt[c["query_frame"]]
+        d = inv_T(np.asarray(c["T_match_query"])) @ T_gt
+        assert np.linalg.norm(d[:3, 3]) < 0.05, c  # a wrong loop, not ground-truth noise
 
 
 def test_cabinet_keyframes_end_to_end():

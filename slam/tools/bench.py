@@ -6,7 +6,7 @@ A suite is a YAML file::
     max_frames: 300             # optional, for every sequence (a sequence entry may override it)
     sequences:
       - demo                    # the built-in synthetic demo (slam.demo.demo_sequence_path())
-      - ../shared/datasets/7scenes-1000            # relative to the suite file's folder
+      - ../shared/datasets/7scenes-300             # relative to the suite file's folder
       - {name: cabinet, path: ../shared/datasets/tum-fr3-cabinet-kf58, max_frames: 58}
     configs:                    # optional (default: {default: {}})
       default: {}                               # the defaults of slam.config.SlamConfig

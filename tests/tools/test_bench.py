@@ -27,7 +27,7 @@ from slam.tools.eval import evaluate_run
 from tests.conftest import SHARED_DATASETS
 
 runner = CliRunner()
-SEVEN_SCENES = SHARED_DATASETS / "7scenes-1000"
+SEVEN_SCENES = SHARED_DATASETS / "7scenes-300"
 FAST = {"output": {"save_mesh": False}}
 BAD = {"tracking": {"no_such_key": 1}}
 
@@ -41,7 +41,7 @@ def _tiny_synthetic(path: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def suite_dict(tmp_path_factory):
-    """The synthetic demo (a 10-frame stand-in in a private cache), 7scenes-1000 when the shared
+    """The synthetic demo (a 10-frame stand-in in a private cache), 7scenes-300 when the shared
     datasets are there, and a missing folder; a valid config and one with a bad key."""
     from slam.demo import DEMO_VERSION
 
@@ -152,7 +152,7 @@ RUN_TO_RUN = {
     "ate_rmse_odometry_m": 2e-3,
     "rpe_trans_rmse_m": 2e-3,
     "rpe_rot_rmse_deg": 0.06,
-    # drift over 5 frames of 7scenes-1000 (a few cm of path) is the noisiest: 6 identical runs
+    # drift over 5 frames of 7-Scenes (a few cm of path) is the noisiest: 6 identical runs
     # gave 7.6-13.6% (code of 2c63699) and 7.9-15.0% (after the layout change of issue 16)
     "drift_percent": 8.0,
 }
@@ -292,7 +292,7 @@ def test_bench_cli_failed_runs_exit_code(tmp_path):
 
 def test_example_suite_parses():
     suite = load_suite(Path(__file__).resolve().parents[2] / "scripts" / "bench_suite_example.yaml")
-    assert [s.name for s in suite.sequences] == ["demo", "7scenes-1000", "cabinet"]
+    assert [s.name for s in suite.sequences] == ["demo", "7scenes-300", "cabinet"]
     assert list(suite.configs) == ["default", "voxel_2cm", "no_frame_to_frame"]
     assert suite.sequences[2].max_frames == 58 and suite.max_frames == 300
     for overrides in suite.configs.values():

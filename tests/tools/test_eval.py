@@ -38,7 +38,7 @@ from slam.trajectory import Trajectory, read_tum, write_tum
 RTOL = 1e-9
 STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
 DATASETS = Path(__file__).resolve().parents[2].parent / "shared" / "datasets"
-SEVEN_SCENES_GT = DATASETS / "7scenes-1000" / "groundtruth.txt"
+SEVEN_SCENES_GT = DATASETS / "7scenes-300" / "groundtruth.txt"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -421,7 +421,7 @@ def test_real_7scenes_gt_matches_evo_cli(tmp_path, evo_cli):
     if not SEVEN_SCENES_GT.is_file():
         pytest.skip(f"real dataset not available: {SEVEN_SCENES_GT} is missing")
     gt = read_tum(SEVEN_SCENES_GT)
-    est = perturb(gt, seed=3, step=1, dt=0.003, sigma_t=0.005, sigma_r=0.003, drop=(100, 500))
+    est = perturb(gt, seed=3, step=1, dt=0.003, sigma_t=0.005, sigma_r=0.003, drop=(100, 250))
     est_path = tmp_path / "est.txt"
     write_tum(est_path, est)
     est = read_tum(est_path)
@@ -677,7 +677,7 @@ def test_real_7scenes_drift_rpe_units_match_evo(tmp_path):
     if not SEVEN_SCENES_GT.is_file():
         pytest.skip(f"real dataset not available: {SEVEN_SCENES_GT} is missing")
     gt = read_tum(SEVEN_SCENES_GT)
-    est = perturb(gt, seed=5, step=1, dt=0.002, sigma_t=0.004, sigma_r=0.002, drop=(10, 700))
+    est = perturb(gt, seed=5, step=1, dt=0.002, sigma_t=0.004, sigma_r=0.002, drop=(10, 200))
     est_path = tmp_path / "est.txt"
     write_tum(est_path, est)
     est = read_tum(est_path)
@@ -704,7 +704,7 @@ def test_real_7scenes_drift_rpe_units_match_evo(tmp_path):
 
 @pytest.mark.realdata
 def test_real_run_folder_eval_matches_evo_cli(tmp_path, evo_cli):
-    """A run folder on 7scenes-1000: `evaluate_run` == evo_ape / evo_rpe on the same files."""
+    """A run folder on 7scenes-300: `evaluate_run` == evo_ape / evo_rpe on the same files."""
     if not SEVEN_SCENES_GT.is_file():
         pytest.skip(f"real dataset not available: {SEVEN_SCENES_GT} is missing")
     gt = read_tum(SEVEN_SCENES_GT)

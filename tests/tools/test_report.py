@@ -256,7 +256,7 @@ def test_report_cli(tmp_path):
 
 @pytest.mark.realdata
 def test_report_on_7scenes_ground_truth(tmp_path):
-    seq = SHARED_DATASETS / "7scenes-1000"
+    seq = SHARED_DATASETS / "7scenes-300"
     if not (seq / "groundtruth.txt").is_file():
         pytest.skip(f"real dataset not available: {seq} is missing")
     gt = read_tum(seq / "groundtruth.txt")
