@@ -23,7 +23,9 @@ class Calibration:
 
     ``k1 k2 p1 p2 k3``: lens distortion of the images (OpenCV's radial-tangential model), all 0
     when the images are already undistorted; loaders undistort frames that have it, so every
-    frame the pipeline sees is pinhole with intrinsics ``K``."""
+    frame the pipeline sees is pinhole with intrinsics ``K``. ``colour_delay_s``: how much
+    later the colour camera took its images, relative to the depth camera, than their
+    timestamps say (a sensor's timing, calibrated like its intrinsics; None: not stated, 0)."""
 
     width: int
     height: int
@@ -37,12 +39,13 @@ class Calibration:
     p1: float = 0.0
     p2: float = 0.0
     k3: float = 0.0
+    colour_delay_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
             raise CalibrationError(f"image size must be positive, got {self.width}x{self.height}")
         values = self.to_dict()
-        bad = [k for k, v in values.items() if not np.isfinite(v)]
+        bad = [k for k, v in values.items() if v is not None and not np.isfinite(v)]
         if bad:
             raise CalibrationError(
                 "calibration values must be finite numbers, got "
@@ -53,6 +56,11 @@ class Calibration:
         if self.depth_scale <= 0:
             raise CalibrationError(f"depth_scale must be positive, got {self.depth_scale}")
         check_intrinsics(self.K, self.width, self.height, "calibration")
+        if self.colour_delay_s is not None and abs(self.colour_delay_s) >= 0.1:
+            raise CalibrationError(
+                "colour_delay_s is a capture-timing offset of a few milliseconds (|value| < "
+                f"0.1 s), got {self.colour_delay_s}"
+            )
 
     @property
     def K(self) -> np.ndarray:
@@ -82,6 +90,7 @@ class Calibration:
             "p1": self.p1,
             "p2": self.p2,
             "k3": self.k3,
+            "colour_delay_s": self.colour_delay_s,
         }
 
 

@@ -24,11 +24,19 @@ TUM_DISTORTION = {
     "freiburg2": (0.2312, -0.7849, -0.0033, -0.0001, 0.9172),
 }
 
-#: TUM RGB-D calibrated intrinsics (with their distortion), depth scale 5000.
+#: How much later (s) TUM's freiburg1 Kinect took its colour images, relative to its depth
+#: images, than their timestamps say: 12 ms, where both shared freiburg1 recordings track and
+#: close loops best and where the keyframe features agree with the tracked poses far better
+#: than as stamped (docs/decisions.md, "TUM freiburg1's colour delay"). freiburg2's and
+#: freiburg3's cameras are not measured.
+TUM_COLOUR_DELAY_S = {"freiburg1": 0.012}
+
+#: TUM RGB-D calibrated intrinsics (with their distortion and colour delay), depth scale 5000.
 TUM_DEFAULTS = {
     "freiburg1": Calibration(
-        640, 480, 517.3, 516.5, 318.6, 255.3, 5000.0, *TUM_DISTORTION["freiburg1"]
-    ),
+        640, 480, 517.3, 516.5, 318.6, 255.3, 5000.0, *TUM_DISTORTION["freiburg1"],
+        colour_delay_s=TUM_COLOUR_DELAY_S["freiburg1"],
+    ),  # fmt: skip
     "freiburg2": Calibration(
         640, 480, 520.9, 521.0, 325.1, 249.7, 5000.0, *TUM_DISTORTION["freiburg2"]
     ),
@@ -40,6 +48,8 @@ SEVEN_SCENES_DEFAULT = Calibration(640, 480, 585.0, 585.0, 320.0, 240.0, 1000.0)
 
 KEYS = ("width", "height", "fx", "fy", "cx", "cy", "depth_scale")
 DISTORTION_KEYS = ("k1", "k2", "p1", "p2", "k3")  # optional in calibration.yaml (default 0)
+#: optional keys of calibration.yaml and dataset.calibration: the distortion and the colour delay
+OPTIONAL_KEYS = (*DISTORTION_KEYS, "colour_delay_s")
 
 
 def read_calibration_yaml(path: Path) -> Calibration:
@@ -62,7 +72,7 @@ def read_calibration_yaml(path: Path) -> Calibration:
             cx=float(data["cx"]),
             cy=float(data["cy"]),
             depth_scale=float(data["depth_scale"]),
-            **{k: float(data[k]) for k in DISTORTION_KEYS if data.get(k) is not None},
+            **{k: float(data[k]) for k in OPTIONAL_KEYS if data.get(k) is not None},
         )
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"{path}: non-numeric calibration value: {exc}") from exc
@@ -78,20 +88,25 @@ def tum_default_for(folder: Path) -> Calibration | None:
 
 
 def with_tum_distortion(calib: Calibration) -> Calibration:
-    """``calib`` with TUM's published distortion when it states none and its intrinsics are
-    TUM's calibrated ones of the freiburg1 or freiburg2 camera (those intrinsics were estimated
-    together with that distortion; using them without it leaves the images' ~2% radial
-    distortion in, which the rigid alignment of tracking partly explains by translation)."""
-    if calib.has_distortion:
-        return calib
+    """``calib`` with what TUM's freiburg1 or freiburg2 camera is known to have, where its
+    intrinsics are that camera's calibrated ones and it states none of it: TUM's published
+    distortion (those intrinsics were estimated together with it; using them without it leaves
+    the images' ~2% radial distortion in, which the rigid alignment of tracking partly explains
+    by translation) and the camera's colour delay (:data:`TUM_COLOUR_DELAY_S`)."""
     for name, dist in TUM_DISTORTION.items():
         d = TUM_DEFAULTS[name]
         same = (calib.width, calib.height) == (d.width, d.height) and np.allclose(
             [calib.fx, calib.fy, calib.cx, calib.cy], [d.fx, d.fy, d.cx, d.cy], atol=0.05
         )
-        if same:
+        if not same:
+            continue
+        values = calib.to_dict()
+        if not calib.has_distortion:
             log.info("intrinsics of TUM's %s camera: undistorting with its published model", name)
-            return Calibration(**{**calib.to_dict(), **dict(zip(DISTORTION_KEYS, dist))})
+            values.update(zip(DISTORTION_KEYS, dist))
+        if calib.colour_delay_s is None and name in TUM_COLOUR_DELAY_S:
+            values["colour_delay_s"] = TUM_COLOUR_DELAY_S[name]
+        return Calibration(**values)
     return calib
 
 
@@ -105,7 +120,7 @@ def apply_overrides(calib: Calibration, overrides: dict[str, Any] | None) -> Cal
             continue
         if key not in values:
             raise CalibrationError(
-                f"unknown calibration override {key!r}; expected one of {KEYS + DISTORTION_KEYS}"
+                f"unknown calibration override {key!r}; expected one of {KEYS + OPTIONAL_KEYS}"
             )
         values[key] = value
     return Calibration(**values)
@@ -117,18 +132,18 @@ def from_overrides(overrides: dict[str, Any] | None) -> Calibration | None:
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
     if any(k not in given for k in KEYS):
         return None
-    unknown = sorted(set(given) - set(KEYS + DISTORTION_KEYS))
+    unknown = sorted(set(given) - set(KEYS + OPTIONAL_KEYS))
     if unknown:
         raise CalibrationError(
             f"unknown calibration override {unknown[0]!r}; expected one of "
-            f"{KEYS + DISTORTION_KEYS}"
+            f"{KEYS + OPTIONAL_KEYS}"
         )
     try:
         return Calibration(
             width=int(given["width"]),
             height=int(given["height"]),
             **{k: float(given[k]) for k in ("fx", "fy", "cx", "cy", "depth_scale")},
-            **{k: float(given[k]) for k in DISTORTION_KEYS if k in given},
+            **{k: float(given[k]) for k in OPTIONAL_KEYS if k in given},
         )
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"dataset.calibration: non-numeric value: {exc}") from exc

@@ -320,8 +320,12 @@ class TumSequence(Sequence):
         if self._undistort is not None and depth.shape == self._undistort.map_x.shape:
             depth = self._undistort.depth(depth)
             color = None if color is None else self._undistort.color(color)
-        stamp, color_dt = float(self._stamps[index]), float(self._color_dt[index])
-        return Frame(index, stamp, color, depth, self.calibration.K, color_dt)
+        # when the colour image was taken after the depth image: as stamped, plus the camera's
+        # calibrated colour delay
+        color_dt = float(self._color_dt[index])
+        if color is not None:
+            color_dt += c.colour_delay_s or 0.0
+        return Frame(index, float(self._stamps[index]), color, depth, c.K, color_dt)
 
     @property
     def ground_truth(self) -> Trajectory | None:

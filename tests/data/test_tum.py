@@ -8,15 +8,16 @@ from slam.errors import CalibrationError, DatasetError, FrameReadError
 from slam.trajectory import Trajectory
 
 
-def _write_seq(root, rgb_stamps, depth_stamps, calib=True, gt=None):
+def _write_seq(root, rgb_stamps, depth_stamps, calib=True, gt=None, size=(64, 48)):
     (root / "rgb").mkdir(parents=True)
     (root / "depth").mkdir()
     rgb_lines, depth_lines = ["# rgb"], ["# depth"]
+    w, h = size
     for i, t in enumerate(rgb_stamps):
-        cv2.imwrite(str(root / f"rgb/{i}.png"), np.full((48, 64, 3), i, np.uint8))
+        cv2.imwrite(str(root / f"rgb/{i}.png"), np.full((h, w, 3), i, np.uint8))
         rgb_lines.append(f"{t:.6f} rgb/{i}.png")
     for i, t in enumerate(depth_stamps):
-        cv2.imwrite(str(root / f"depth/{i}.png"), np.full((48, 64), 5000 + i, np.uint16))
+        cv2.imwrite(str(root / f"depth/{i}.png"), np.full((h, w), 5000 + i, np.uint16))
         depth_lines.append(f"{t:.6f} depth/{i}.png")
     (root / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")
@@ -145,6 +146,31 @@ def test_tum_fr1_intrinsics_come_with_their_published_distortion(tmp_path):
     assert not open_sequence(root, calibration_overrides=off).calibration.has_distortion
     root = _write_calib(_write_seq(tmp_path / "c", [0.0], [0.0]), FR1_YAML.replace("517.3", "520"))
     assert not open_sequence(root).calibration.has_distortion
+
+
+def test_tum_fr1_colour_is_taken_later_than_stamped(tmp_path):
+    """fr1's Kinect took its colour images 12 ms later, relative to depth, than the stamps say
+    (slam.data.calibration.TUM_COLOUR_DELAY_S): its intrinsics bring that delay, which every
+    frame's colour instant includes; a calibration or an override stating its own keeps it,
+    other intrinsics and depth-only sequences have none, and a delay of 0.1 s or more is no
+    timing offset."""
+    rgb, depth = [0.000, 0.033], [0.010, 0.043]  # colour stamped 10 ms before depth
+
+    def write(name, yaml):
+        return _write_calib(_write_seq(tmp_path / name, rgb, depth, size=(640, 480)), yaml)
+
+    root = write("a", FR1_YAML)
+    seq = open_sequence(root)
+    assert seq.calibration.colour_delay_s == 0.012
+    assert seq[1].color_dt_s == pytest.approx(-0.010 + 0.012)
+    stated = write("b", FR1_YAML + "colour_delay_s: 0\n")
+    assert open_sequence(stated)[1].color_dt_s == pytest.approx(-0.010)
+    override = open_sequence(root, calibration_overrides={"colour_delay_s": 0.004})
+    assert override[1].color_dt_s == pytest.approx(-0.006)
+    other = write("c", FR1_YAML.replace("517.3", "520"))
+    assert open_sequence(other)[1].color_dt_s == pytest.approx(-0.010)
+    with pytest.raises(CalibrationError, match="colour_delay_s"):
+        open_sequence(root, calibration_overrides={"colour_delay_s": 0.5})
 
 
 def test_frames_are_undistorted(tmp_path):
