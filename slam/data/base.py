@@ -45,7 +45,7 @@ class Calibration:
         if self.width <= 0 or self.height <= 0:
             raise CalibrationError(f"image size must be positive, got {self.width}x{self.height}")
         values = self.to_dict()
-        bad = [k for k, v in values.items() if v is not None and not np.isfinite(v)]
+        bad = [k for k, v in values.items() if not np.isfinite(v)]
         if bad:
             raise CalibrationError(
                 "calibration values must be finite numbers, got "
@@ -90,7 +90,7 @@ class Calibration:
             "p1": self.p1,
             "p2": self.p2,
             "k3": self.k3,
-            "colour_delay_s": self.colour_delay_s,
+            **({} if self.colour_delay_s is None else {"colour_delay_s": self.colour_delay_s}),
         }
 
 
