@@ -32,8 +32,9 @@ import cv2
 import numpy as np
 
 from slam.frontend.icp import IcpResult
+from slam.frontend.joint_kernels import geometric_rows, photometric_rows, weighted_system
 from slam.frontend.rgbd_image import RgbdImage, _SourceLevel, _TargetLevel
-from slam.frontend.robust import huber_weights, median, robust_scale
+from slam.frontend.robust import median, robust_scale
 from slam.frontend.weighted_icp import vertex_map, without_blind_directions
 from slam.geometry import exp_se3, inv_T
 
@@ -130,16 +131,6 @@ def mean_warped_intensity(
     return out.reshape(depth_m.shape)
 
 
-def _cross_jacobian(Q: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """(N, 6) rows ``[Q x g, g]``: d(g . Q)/d(twist) for the update ``T <- exp(twist) T``."""
-    J = np.empty((len(Q), 6), np.float32)
-    J[:, 0] = Q[:, 1] * g[:, 2] - Q[:, 2] * g[:, 1]
-    J[:, 1] = Q[:, 2] * g[:, 0] - Q[:, 0] * g[:, 2]
-    J[:, 2] = Q[:, 0] * g[:, 1] - Q[:, 1] * g[:, 0]
-    J[:, 3:] = g
-    return J
-
-
 #: rows per block of a tall matrix product. OpenBLAS multiplies blocks this small on one thread;
 #: on tens of thousands of rows it uses its threads, which then spin for a while after the
 #: product and slow the next Open3D kernel by about half on two cores (docs/benchmarks.md,
@@ -155,53 +146,6 @@ def _tall_times(A: np.ndarray, M: np.ndarray) -> np.ndarray:
     for s in range(0, len(A), _BLOCK_ROWS):
         np.matmul(A[s : s + _BLOCK_ROWS], M, out=out[s : s + _BLOCK_ROWS])
     return out
-
-
-def _normal_equations(J: np.ndarray, w: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(J^T W J, J^T W r)`` in float64, summed block by block (one thread)."""
-    H = np.zeros((J.shape[1], J.shape[1]))
-    b = np.zeros(J.shape[1])
-    for s in range(0, len(J), _BLOCK_ROWS):
-        Jb = J[s : s + _BLOCK_ROWS]
-        Jw = Jb * w[s : s + _BLOCK_ROWS, None]
-        H += Jw.T @ Jb
-        b += Jw.T @ r[s : s + _BLOCK_ROWS]
-    return H, b
-
-
-def _photometric_equations(
-    intensity: np.ndarray,
-    photo: np.ndarray,
-    Qp: np.ndarray,
-    uf: np.ndarray,
-    vf: np.ndarray,
-    inv_z: np.ndarray,
-    fx: np.float32,
-    fy: np.float32,
-    weight: float,
-    min_scale: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Normal equations of the photometric term: source points ``Qp`` (target camera frame)
-    with their ``intensity``, projected to ``(uf, vf)`` in the target's ``photo`` (intensity
-    and its gradients), residuals less their median (a global brightness offset), Huber
-    weights at 1.345 robust scales, times ``weight``."""
-    smp = _sample(photo, uf, vf)
-    seen = np.isfinite(smp).all(axis=1)  # a warped target (warp_intensity) is NaN where unseen
-    if not seen.all():
-        i = np.flatnonzero(seen)
-        smp, Qp = np.take(smp, i, axis=0), np.take(Qp, i, axis=0)
-        intensity, inv_z = intensity[i], inv_z[i]
-        if len(smp) < 6:
-            return np.zeros((6, 6)), np.zeros(6)
-    rp = smp[:, 0] - intensity
-    rp -= np.float32(median(rp))  # global brightness offset
-    s_p = robust_scale(rp, min_scale)
-    wp = weight * huber_weights(rp, 1.345 * s_p) / s_p**2
-    g = np.empty((len(Qp), 3), np.float32)  # d r / d Q
-    g[:, 0] = smp[:, 1] * fx * inv_z
-    g[:, 1] = smp[:, 2] * fy * inv_z
-    g[:, 2] = -(g[:, 0] * Qp[:, 0] + g[:, 1] * Qp[:, 1]) * inv_z
-    return _normal_equations(_cross_jacobian(Qp, g), wp.astype(np.float32), rp)
 
 
 @dataclass
@@ -250,57 +194,66 @@ def _term_equations(
     6 points are visible. ``T_colour``: the pose of the source's colour camera in the target's
     colour camera, when the colour images were not taken at their depth images' instants
     (None: ``T``). The depths come with the photometric term only; without the
-    ``geometric_term`` its equations, residuals and the depths are None."""
-    fx, fy, cx, cy = (np.float32(k) for k in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
-    h, w = tgt.shape
-    gate = terms.gate
-    Q, uf, vf, inv_z = _project(src.points, T, fx, fy, cx, cy)
-    front = Q[:, 2] > 1e-3
-    ui = np.rint(uf).astype(np.int64)
-    vi = np.rint(vf).astype(np.int64)
-    idx = np.flatnonzero(front & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h))
-    pix = vi[idx] * w + ui[idx]
-    zt = tgt.depth[pix]
-    keep = zt > 0
-    idx, pix, zt = idx[keep], pix[keep], zt[keep]
-    # rows are gathered with np.take: the same values as fancy indexing, 3x faster on (N, 3)
-    Qi = np.take(Q, idx, axis=0)
+    ``geometric_term`` its equations, residuals and the depths are None. One compiled pass
+    over the source points (:mod:`slam.frontend.joint_kernels`) per term."""
+    intrinsics = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], np.float32)
+    n = len(src.points)
+    J = np.empty((n, 6), np.float32)
+    r = np.empty(n, np.float32)
+    z = np.empty(n, np.float32)
+    visible = np.empty(n, np.int64)
+    R, t = T[:3, :3].astype(np.float32), T[:3, 3].astype(np.float32)
+    n_assoc, n_geo, n_vis = geometric_rows(
+        src.points, R, t, intrinsics, tgt.depth, tgt.geometry, tgt.shape, terms.gate,
+        geometric_term, J, r, z, visible,
+    )  # fmt: skip
     geometric: _NormalEquations | None = None
+    rg = z_geo = None
     if not geometric_term:
-        if len(idx) < 6:
+        if n_assoc < 6:
             return None
-        rg = None
-    else:
-        # geometric term: point-to-plane against the projectively associated target vertex
-        g = np.take(tgt.geometry, pix, axis=0)
-        n = g[:, 4:7]
-        r_g = np.einsum("ij,ij->i", Qi - g[:, :3], n)
-        geo = np.flatnonzero((np.abs(r_g) < gate) & (g[:, 7] > 0))
-        if len(geo) < 6:
+    else:  # point-to-plane against the projectively associated target vertex
+        if n_geo < 6:
             return None
-        rg = r_g[geo]
+        rg, z_geo = r[:n_geo].copy(), z[:n_geo].copy()
         s_g = robust_scale(rg, terms.min_geo_scale_m)
-        wg = (huber_weights(rg, terms.delta_g) / s_g**2).astype(np.float32)
-        J = _cross_jacobian(np.take(Qi, geo, axis=0), np.take(g, geo, axis=0)[:, 4:7])
-        geometric = _normal_equations(J, wg, rg)
+        geometric = weighted_system(J, r, n_geo, 0.0, s_g, terms.delta_g, 1.0)
     photometric = None
     if terms.photometric_weight > 0 and src.intensity is not None and tgt.photo is not None:
-        # photometric term, on source points the target surface does not hide
-        vis = np.flatnonzero(np.abs(zt - Qi[:, 2]) < gate)
-        if len(vis) >= 6:
-            pi = idx[vis]
-            Qp, up, vp, inv_zp = np.take(Qi, vis, axis=0), uf[pi], vf[pi], inv_z[pi]
-            if T_colour is not None:  # the colour images were taken from other poses
-                points = np.take(src.points, pi, axis=0)
-                Qp, up, vp, inv_zp = _project(points, T_colour, fx, fy, cx, cy)
+        if n_vis >= 6:  # on source points the target surface does not hide
             photometric = _photometric_equations(
-                src.intensity[pi], tgt.photo, Qp, up, vp, inv_zp, fx, fy,
-                terms.photometric_weight, terms.min_pho_scale,
+                src, visible[:n_vis], T if T_colour is None else T_colour, intrinsics,
+                tgt.photo, terms, (J, r),
             )  # fmt: skip
     # the correspondences' depths (to compare rotations with translations), only for the
-    # combinations that use them: not on every depth-only iteration
-    z_geo = Qi[geo, 2] if geometric_term and photometric is not None else None
-    return geometric, photometric, rg, z_geo
+    # combinations that use them
+    return geometric, photometric, rg, (z_geo if photometric is not None else None)
+
+
+def _photometric_equations(
+    src: _SourceLevel,
+    visible: np.ndarray,
+    T_colour: np.ndarray,
+    intrinsics: np.ndarray,
+    photo: np.ndarray,
+    terms: _Terms,
+    scratch: tuple[np.ndarray, np.ndarray],
+) -> _NormalEquations:
+    """Normal equations of the photometric term: the ``visible`` source points moved by
+    ``T_colour`` into the target's colour camera and projected into its ``photo`` (intensity
+    and its gradients), residuals less their median (a global brightness offset), Huber
+    weights at 1.345 robust scales, times the term's weight (``scratch``: rows to write into)."""
+    assert src.intensity is not None
+    J, r = scratch
+    R, t = T_colour[:3, :3].astype(np.float32), T_colour[:3, 3].astype(np.float32)
+    m = photometric_rows(
+        src.points, src.intensity, visible, len(visible), R, t, intrinsics, photo, J, r
+    )
+    if m < 6:
+        return np.zeros((6, 6)), np.zeros(6)
+    offset = np.float32(median(r[:m]))  # global brightness offset
+    s_p = robust_scale(r[:m] - offset, terms.min_pho_scale)
+    return weighted_system(J, r, m, offset, s_p, 1.345 * s_p, terms.photometric_weight)
 
 
 def _joint_equations(parts: _Parts, terms: _Terms) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
