@@ -97,6 +97,25 @@ def test_frame_without_depth_is_lost_not_fatal(frames):
     assert res.metrics["relocalisations"] == 1
 
 
+def test_depth_the_volume_cannot_use_is_lost_not_fatal(frames):
+    """Depth with every other row NaN (Open3D samples every 4th pixel: it sees none) or all of
+    it beyond the mapping range (a depth scale 5x off) after good frames: those frames fuse
+    nothing, and the run goes on and finishes (Open3D raised "No block is touched")."""
+    _, fr = frames
+    system = slam.Slam(config_from_dict(FAST))
+    for f in fr[:10]:
+        assert system.step(f).ok
+    striped = fr[10].depth_m.copy()
+    striped[::2] = np.nan
+    far = fr[11].depth_m * 5.0 + 10.0
+    for f, depth in ((fr[10], striped), (fr[11], far)):
+        system.step(slam.Frame(f.index, f.timestamp, f.color, depth, f.K))
+    for f in fr[12:20]:
+        system.step(f)
+    res = system.finish()
+    assert len(res.trajectory) >= 10 and res.mesh is not None
+
+
 def test_loop_verification_trusts_features_only_where_colour_is_registered():
     """A feature's 3D point is where the feature is only where colour and depth are one camera;
     only then may the features veto ICP's loop pose (7-Scenes: two cameras)."""

@@ -217,13 +217,8 @@ class TSDFVolume:
         extrinsic = _tensor(inv_T(T_world_cam), np.float64)
         trunc = float(self.cfg.trunc_voxels)
         depth_max = float(self.cfg.depth_max_m)
-        try:
-            blocks = self.vbg.compute_unique_block_coordinates(
-                depth, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
-            )
-        except RuntimeError as exc:  # depth only between the pixels Open3D samples (every 4th)
-            if "No block is touched" not in str(exc):
-                raise
+        blocks = self._touched_blocks(depth, K_t, extrinsic, _DEPTH_SCALE, depth_max)
+        if blocks is None:
             log.debug("frame fuses nothing: its depth misses the pixels Open3D samples")
             return
         weighted = None if self.noise is None else self._weigh_observations(blocks, T_world_cam)
@@ -240,6 +235,27 @@ class TSDFVolume:
                 weighted.count_observations()
         self._last_blocks = blocks
         self.n_integrated += 1
+
+    def _touched_blocks(
+        self,
+        depth: o3d.t.geometry.Image,
+        K: o3c.Tensor,
+        extrinsic: o3c.Tensor,
+        scale: float,
+        depth_max: float,
+    ) -> o3c.Tensor | None:
+        """The blocks a depth image (Open3D image, ``scale`` units a metre) touches from a pose
+        within the truncation band; None when it touches none (no depth before ``depth_max``
+        at the pixels Open3D samples: every 4th, so NaN rows or a wrong depth scale leave it
+        nothing), where Open3D raises."""
+        try:
+            return self.vbg.compute_unique_block_coordinates(
+                depth, K, extrinsic, scale, depth_max, float(self.cfg.trunc_voxels)
+            )
+        except RuntimeError as exc:
+            if "No block is touched" not in str(exc):
+                raise
+            return None
 
     def _weigh_observations(self, blocks: o3c.Tensor, T_world_cam: np.ndarray) -> _NoiseWeights:
         """Make Open3D's next integration of ``blocks`` a noise-weighted one (see
@@ -297,13 +313,12 @@ class TSDFVolume:
         T_world_cam = T_world_cam.copy()
         T_world_cam[:3, 3] += 0.5 * self.cfg.voxel_size_m
         if frustum_depth_m is not None and self.n_integrated > 0:
-            blocks = self.vbg.compute_unique_block_coordinates(
+            blocks = self._touched_blocks(
                 o3d.t.geometry.Image(_tensor(frustum_depth_m, np.float32)),
                 _tensor(K, np.float64),
                 _tensor(inv_T(T_world_cam), np.float64),
                 1.0,
                 depth_max,
-                self.cfg.trunc_voxels,
             )
         if blocks is None or blocks.shape[0] == 0:
             return Rendering(np.zeros((height, width), np.float32), None, None)
