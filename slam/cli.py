@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 from typing import Annotated, Optional
@@ -39,27 +40,35 @@ def _generate_demo(quiet: bool) -> Path:
 
 
 class _RunProgress:
-    """The progress bar of `slam run`: it appears at the first frame (not while the sequence is
-    checked), shows fps and the tracking state; nothing with --quiet."""
+    """The progress of `slam run`: on a terminal a bar that appears at the first frame (not
+    while the sequence is checked) and shows fps and the tracking state; to a pipe or a file a
+    plain line every ``PLAIN_EVERY_S`` seconds and one when the frames are done; nothing with
+    --quiet."""
+
+    PLAIN_EVERY_S = 5.0
 
     def __init__(self, quiet: bool, parallel: bool = False) -> None:
         self.quiet = quiet
         self.parallel = parallel  # frames stepped by worker processes: no status of their own
+        self.plain = not cli_app.console.is_terminal
         self.bar = progress_bar(
             TextColumn("{task.fields[fps]:>5.1f} fps"), TextColumn("{task.fields[state]}")
         )
         self.task = self.bar.add_task("tracking", total=None, fps=0.0, state="")
         self.t0: float | None = None  # set at the first frame
         self.first = 0
+        self.last_line = 0.0  # when the last plain line was written
 
     def on_frame(self, done: int, total: int, status) -> None:
         if self.quiet:
             return
+        now = time.perf_counter()
         if self.t0 is None:
-            self.bar.start()
-            self.t0 = time.perf_counter()
+            if not self.plain:
+                self.bar.start()
+            self.t0 = self.last_line = now
             self.first = done
-        fps = (done - self.first) / max(time.perf_counter() - self.t0, 1e-9)
+        fps = (done - self.first) / max(now - self.t0, 1e-9)
         if done == total:
             join = "joining the chunks, " if self.parallel else ""
             state = f"{join}finishing: pose graph, map, mesh, files"
@@ -72,9 +81,15 @@ class _RunProgress:
         else:
             state = "[red]lost[/]"
         self.bar.update(self.task, completed=done, total=total, fps=fps, state=state)
+        if self.plain and (done == total or now - self.last_line >= self.PLAIN_EVERY_S):
+            self.last_line = now
+            line = f"tracking {done}/{total} frames, {fps:.1f} fps, {now - self.t0:.0f} s"
+            if done == total:
+                line += f"; {state}"
+            print(line, file=sys.stderr, flush=True)
 
     def stop(self) -> None:
-        if self.t0 is not None:  # started at the first frame
+        if self.t0 is not None and not self.plain:  # started at the first frame
             self.bar.stop()
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import re
 import sys
 from collections.abc import Callable
 from typing import Annotated
@@ -103,16 +104,23 @@ def _main(
         ),
     ] = False,
 ) -> None:
-    # runs before every command: the console for the stream this invocation writes to
+    # runs before every command: the console for the stream this invocation writes to; a
+    # bug's traceback in rich's layout on a terminal, plain (no colour codes) in a file
     global console
     console = _make_console()
+    app.pretty_exceptions_enable = console.is_terminal
+
+
+#: a terminal's colour codes, as a library's message may carry them (Open3D's errors do)
+_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
 def _fail(exc: Exception) -> None:
+    text = escape(_ANSI.sub("", str(exc)))
     if isinstance(exc, RunInterrupted):  # the shell's convention: 128 + the signal's number
-        console.print(f"[bold yellow]stopped:[/] {escape(str(exc))}")
+        console.print(f"[bold yellow]stopped:[/] {text}")
         raise typer.Exit(code=128 + exc.signal_number)
-    console.print(f"[bold red]error:[/] {escape(str(exc))}")
+    console.print(f"[bold red]error:[/] {text}")
     raise typer.Exit(code=2)
 
 

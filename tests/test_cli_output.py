@@ -286,3 +286,36 @@ def test_the_progress_bar_of_a_parallel_run_says_what_the_workers_do():
             assert bar.bar.tasks[0].fields["state"].startswith(end)
         finally:
             bar.stop()
+
+
+def test_a_run_to_a_pipe_prints_a_plain_progress_line_every_few_seconds(capsys):
+    """Not on a terminal (a pipe, a file: rich draws no bar there) the run's progress is a
+    plain line every few seconds, and one when the frames are done; nothing with --quiet."""
+    from slam.cli import _RunProgress
+
+    progress = _RunProgress(quiet=False)
+    assert progress.plain  # the tests' stderr is not a terminal
+    progress.PLAIN_EVERY_S = 0.0
+    for done in range(1, 4):
+        progress.on_frame(done, 3, None)
+    progress.stop()
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 3 and lines[0].startswith("tracking 1/3 frames, "), lines
+    assert lines[-1].startswith("tracking 3/3 frames") and "finishing" in lines[-1]
+    assert "\x1b" not in "".join(lines)
+    quiet = _RunProgress(quiet=True)
+    quiet.on_frame(1, 3, None)
+    assert capsys.readouterr().err == ""
+
+
+def test_a_library_message_reaches_a_file_without_colour_codes(capsys):
+    """Open3D's error text carries a terminal's colour codes; `error: ...` does not."""
+    import typer
+
+    from slam import cli_app
+    from slam.errors import SlamError
+
+    with pytest.raises(typer.Exit):
+        cli_app._fail(SlamError("\x1b[1;31m[Open3D Error] something\x1b[0;m"))
+    err = capsys.readouterr().err
+    assert "error: [Open3D Error] something" in err and "\x1b" not in err
