@@ -120,15 +120,26 @@ def _warn_overridden_calibration(seq: Sequence, cfg: SlamConfig) -> None:
     except DatasetError:  # no calibration of its own: the config's is the one
         return
     ours, theirs = seq.calibration.to_dict(), own.to_dict()
+    source = (
+        "its calibration.yaml"
+        if (Path(seq.path) / "calibration.yaml").is_file()
+        else "the TUM defaults for its folder name"
+    )
     changed = [
-        f"{k} {ours[k]:g} (the folder's: {theirs[k]:g})" for k in ours if ours[k] != theirs[k]
+        f"{k} {_number(ours.get(k))} (the folder's: {_number(theirs.get(k))})"
+        for k in [*ours, *(k for k in theirs if k not in ours)]
+        if ours.get(k) != theirs.get(k)
     ]
     if changed:
         log.warning(
-            "%s: the config's dataset.calibration replaces the folder's own calibration: %s; "
+            "%s: the config's dataset.calibration replaces what the folder gives (%s): %s; "
             "remove dataset.calibration from the config to use the folder's",
-            seq.path, ", ".join(changed),
+            seq.path, source, ", ".join(changed),
         )  # fmt: skip
+
+
+def _number(value: float | None) -> str:
+    return "none" if value is None else f"{value:g}"
 
 
 @contextmanager

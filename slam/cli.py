@@ -207,7 +207,9 @@ def run(
     files = ", ".join(sorted(p.name for p in run_dir.iterdir() if p.is_file()))
     cli_app.console.print(f"[green]wrote[/] {escape(f'{run_dir}: {files}')}")
     if rerun is not None:
-        cli_app.console.print(f"[green]wrote[/] {escape(f'{rerun} (open it with `rerun {rerun}`)')}")
+        cli_app.console.print(
+            f"[green]wrote[/] {escape(f'{rerun} (open it with `rerun {rerun}`)')}"
+        )
     typer.echo(summary_line(result.metrics))
 
 

@@ -189,6 +189,9 @@ def eval_cmd(
             )
         _eval_run_folder(gt, gt_file, plot, as_json, t_max_diff, correct_scale, deltas, drift_align)
         return
+    if not gt.exists():
+        raise SlamError(f"{gt} not found: give a run folder (`slam eval RUN_DIR`) or two "
+                        "trajectory files (`slam eval GT EST`)")  # fmt: skip
     if est is None:
         raise SlamError(
             f"{gt} is not a folder: give a run folder (`slam eval RUN_DIR`) or a ground-truth "

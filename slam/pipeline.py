@@ -334,8 +334,9 @@ def _real_time(m: dict[str, Any]) -> str:
 
 def summary_line(m: dict[str, Any]) -> str:
     """One line: frames, speed, lost and skipped frames, loops, ATE."""
+    frames = "1 frame" if m["frames"] == 1 else f"{m['frames']} frames"
     line = (
-        f"{m['frames']} frames, {m['fps'] or 0:.1f} fps{_real_time(m)}, "
+        f"{frames}, {m['fps'] or 0:.1f} fps{_real_time(m)}, "
         f"{len(m['lost_frames'])} lost, "
         f"{m['frames_skipped']} skipped, {m['relocalisations']} relocalisations, "
         f"{m['loops_accepted']} loops closed"

@@ -209,7 +209,7 @@ def test_run_folder_records_software_and_the_calibration_used(tmp_path):
     again = load_config(tmp_path / "run2" / "config.yaml")
     assert again.dataset.calibration == fr1.to_dict()
     assert again.dataset.path == str(copy.resolve())
-    assert "replaces the folder's own calibration" not in res.output
+    assert "dataset.calibration replaces" not in res.output
 
 
 def test_config_calibration_that_changes_the_folders_own_is_warned(tmp_path, caplog):
@@ -229,6 +229,7 @@ def test_config_calibration_that_changes_the_folders_own_is_warned(tmp_path, cap
     other = config_from_dict({"dataset": {"calibration": {**own.to_dict(), "fx": 300.0}}})
     _warn_overridden_calibration(open_sequence(seq, "auto", other.dataset.calibration), other)
     assert "fx 300 (the folder's: 262.5)" in caplog.text
+    assert "replaces what the folder gives (its calibration.yaml)" in caplog.text
 
 
 # --- item 13: slam view --open without a display
@@ -319,3 +320,17 @@ def test_a_library_message_reaches_a_file_without_colour_codes(capsys):
         cli_app._fail(SlamError("\x1b[1;31m[Open3D Error] something\x1b[0;m"))
     err = capsys.readouterr().err
     assert "error: [Open3D Error] something" in err and "\x1b" not in err
+
+
+def test_wording_one_frame_and_a_missing_path(tmp_path):
+    """'1 frame', not '1 frames'; `slam eval` on a path that does not exist says so (it said
+    'not a folder')."""
+    from slam.pipeline import summary_line
+
+    m = {"frames": 1, "fps": 2.0, "lost_frames": [], "frames_skipped": 0,
+         "relocalisations": 0, "loops_accepted": 0}  # fmt: skip
+    assert summary_line(m).startswith("1 frame, 2.0 fps")
+    assert summary_line({**m, "frames": 3}).startswith("3 frames, ")
+    res = runner.invoke(app, ["eval", str(tmp_path / "nope")])
+    assert res.exit_code == 2
+    assert f"{tmp_path / 'nope'} not found" in flat(res.output)

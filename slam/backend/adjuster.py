@@ -189,7 +189,7 @@ class BundleAdjuster:
             pass
         elif per_kf < self.cfg.min_observations_per_keyframe:
             why = (
-                f"{per_kf:.0f} landmark observations per keyframe (min "
+                f"{per_kf:.1f} landmark observations per keyframe (min "
                 f"{self.cfg.min_observations_per_keyframe}): too few to improve on the depth "
                 "odometry; the pose graph stands"
             )
