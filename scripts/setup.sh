@@ -17,6 +17,8 @@ if [ -x "$VENV/bin/slam" ] && [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$WANT" ]
   echo "already set up in $VENV (delete $STAMP to reinstall)"
   exit 0
 fi
+echo "setting up: a virtualenv in $VENV with the package and its dependencies (Open3D, GTSAM,"
+echo "numba, Ray, rerun: about 2 minutes and ~3 GB the first time) ..."
 python3 -m venv "$VENV"
 "$VENV/bin/python" -m pip install -q --upgrade pip
 # PYTHONWARNINGS: setuptools' advice on editable installs in general (a UserWarning printed by

@@ -211,10 +211,16 @@ def eval_cmd(
 
         aligned = slam_eval.align_trajectory(gt_traj, est_traj, correct_scale, t_max_diff)
         plot_trajectories(plot, gt_traj, {est.stem: aligned}, title=str(est))
+        _wrote(plot)
     if as_json:
         typer.echo(json.dumps(res.as_dict()))
         return
     echo_result(res)
+
+
+def _wrote(path: Path) -> None:
+    """The plot's "wrote" line, on stderr (with --json stdout holds the JSON alone)."""
+    cli_app.console.print(f"[green]wrote[/] {escape(str(path))}")
 
 
 def _eval_run_folder(
@@ -245,6 +251,7 @@ def _eval_run_folder(
             ref, run.trajectory(), correct_scale, t_max_diff
         )
         plot_trajectories(plot, ref, trajs, title=str(run_dir))
+        _wrote(plot)
     if as_json:
         typer.echo(json.dumps(ev.as_dict()))
     else:

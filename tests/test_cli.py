@@ -47,6 +47,7 @@ def test_eval_json_matches_library(tmp_path):
     for key in ("ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "matched_poses"):
         assert out[key] == lib[key]
     assert (tmp_path / "p.png").stat().st_size > 1000
+    assert f"wrote {tmp_path / 'p.png'}" in res.stderr  # stdout holds the JSON alone
 
 
 def test_eval_reports_unassociated_timestamps(tmp_path):
