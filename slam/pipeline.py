@@ -252,7 +252,7 @@ def run(
     start = 0
     if resume:
         assert run_dir is not None
-        start, checkpoint_every = _resume(system, Path(run_dir), checkpoint_every)
+        start, checkpoint_every = _resume(system, Path(run_dir), checkpoint_every, len(indices))
         log.info("resuming %s at frame %d of %d", run_dir, start, len(indices))
     else:
         check_sequence(sequence, indices)
@@ -285,9 +285,12 @@ def run(
     return result
 
 
-def _resume(system: Slam, run_dir: Path, checkpoint_every: int | None) -> tuple[int, int | None]:
-    """Load the run folder's checkpoint into ``system``: the number of frames it had done, and
-    the checkpoint interval to go on with (the interrupted run's when none is given)."""
+def _resume(
+    system: Slam, run_dir: Path, checkpoint_every: int | None, total: int
+) -> tuple[int, int | None]:
+    """Load the run folder's checkpoint into ``system``: the number of frames it had done (of
+    ``total``; a position the state does not hold is refused), and the checkpoint interval to
+    go on with (the interrupted run's when none is given)."""
     state, start = read_checkpoint(run_dir)
     if checkpoint_every is None:
         every = state.get("checkpoint_every", 0)
@@ -299,6 +302,13 @@ def _resume(system: Slam, run_dir: Path, checkpoint_every: int | None) -> tuple[
             f"{run_dir}: the checkpoint does not hold a complete state of this version "
             f"({type(exc).__name__}: {exc}); start the run again with --overwrite"
         ) from exc
+    stepped = len(system.statuses) + len(system.skipped)
+    if not 0 < start <= total or start != stepped:
+        raise RunFolderError(
+            f"{run_dir}: damaged checkpoint: its position says {start} frames were done, its "
+            f"state holds {stepped} of the sequence's {total}; start the run again with "
+            "--overwrite"
+        )
     return start, checkpoint_every
 
 

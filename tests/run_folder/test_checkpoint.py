@@ -558,3 +558,14 @@ def test_resume_from_another_directory_gives_the_same_run(interrupted, tmp_path,
     # 3 mm before ray-casts kept every block in their range map: see slam/mapping/range_map.py)
     assert diff < 0.0005, diff
     assert abs(ma["ate_rmse_m"] - mb["ate_rmse_m"]) < 0.001
+
+
+@pytest.mark.parametrize("position", [1_000_000_000, -5, 0, 39, 41])
+def test_a_position_the_state_does_not_hold_is_refused(run, position):
+    """The header's frame position must be what the state holds (40 frames of 60): a run
+    resumed from 1e9 or -5 'completed' with frames never processed, without a word."""
+    from slam.api import resume_run
+
+    _doctor(run, lambda h: h.update(position=position))
+    with pytest.raises(slam.RunFolderError, match=f"position says {position} frames.*--overwrite"):
+        resume_run(run)
