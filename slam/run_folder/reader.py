@@ -132,6 +132,10 @@ class RunFolder:
             raise RunFolderError(
                 f"{path}: not valid JSON ({exc}); was the run interrupted while writing it?"
             ) from exc
+        except RecursionError:  # arrays nested thousands deep: no file this package writes
+            raise RunFolderError(
+                f"{path}: nested too deeply to be a file of `slam run`; was it replaced?"
+            ) from None
 
     def metrics(self) -> dict[str, Any]:
         """``metrics.json`` (``{}`` when absent or not an object)."""

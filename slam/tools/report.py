@@ -28,9 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from slam.errors import SlamError
+from slam.errors import RunFolderError, SlamError
 from slam.run_folder import (
     ERROR_PNG,
+    LOOPS_FILE,
+    METRICS_FILE,
     ODOMETRY_FILE,
     REPORT_FILE,
     TIMING_PNG,
@@ -346,8 +348,15 @@ def write_report(
     out.mkdir(parents=True, exist_ok=True)
     title = run.path.resolve().name
     gt, ev, gt_error = _ground_truth(run, gt_path, max_diff, correct_scale, rpe_deltas)
-    plots, plane, timing = _plots(run, out, title, gt, max_diff, correct_scale)
-    text = _markdown(run, title, gt, ev, gt_error, plane, timing, max_diff, correct_scale)
+    try:
+        plots, plane, timing = _plots(run, out, title, gt, max_diff, correct_scale)
+        text = _markdown(run, title, gt, ev, gt_error, plane, timing, max_diff, correct_scale)
+    except (TypeError, ValueError, KeyError, AttributeError) as exc:  # edited or damaged files
+        raise RunFolderError(
+            f"{run.path}: {METRICS_FILE} or {LOOPS_FILE} holds a value of the wrong kind "
+            f"({type(exc).__name__}: {exc}); was it edited? Run the sequence again for a "
+            "report"
+        ) from None
     md = out / REPORT_FILE
     atomic_write_text(md, text)
     logger.info("wrote %s and %d plots", md, len(plots))

@@ -3,6 +3,7 @@ closure, tracking and timing, as Markdown lines, from a run's contents."""
 
 from __future__ import annotations
 
+import numbers
 import re
 from typing import TYPE_CHECKING, Any
 
@@ -57,7 +58,10 @@ def stage_totals(metrics: dict[str, Any]) -> list[tuple[str, float]]:
 
 
 def fmt_value(v: Any, fmt: str) -> str:
-    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+    """``v`` formatted, "n/a" when missing, not finite, or not a number (a damaged file)."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        return "n/a"
+    if isinstance(v, float) and not np.isfinite(v):
         return "n/a"
     return format(v, fmt)
 

@@ -4,6 +4,7 @@ tracking.csv converts both ways without loss."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,3 +163,31 @@ def test_segments_and_names(tmp_path):
         "tracking.csv", "loops.json", "pose_graph.g2o", "report.md", "recording.rrd",
         "chunks.json",
     )  # fmt: skip
+
+
+def test_damaged_json_in_a_run_folder_is_a_clear_error_or_n_a(small_run, tmp_path):
+    """metrics.json or loops.json of arrays nested 100,000 deep: a RunFolderError, not a
+    RecursionError; metrics.json whose values are strings: `slam report` says which file
+    holds a value of the wrong kind instead of a ValueError traceback."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from slam.cli import app
+    from slam.errors import RunFolderError
+    from slam.run_folder import LOOPS_FILE, METRICS_FILE
+
+    _, _, run_dir = small_run
+    for name in (METRICS_FILE, LOOPS_FILE):
+        copy = Path(shutil.copytree(run_dir, tmp_path / f"deep-{name}"))
+        (copy / name).write_text("[" * 100_000 + "]" * 100_000)
+        with pytest.raises(RunFolderError, match="nested too deeply"):
+            RunFolder(copy)._json(name)
+        res = CliRunner().invoke(app, ["report", str(copy)])
+        assert res.exit_code == 2 and "nested too deeply" in res.output, res.output
+    copy = Path(shutil.copytree(run_dir, tmp_path / "strings"))
+    metrics = json.loads((copy / METRICS_FILE).read_text())
+    stringy = {k: (str(v) if isinstance(v, (int, float)) else v) for k, v in metrics.items()}
+    (copy / METRICS_FILE).write_text(json.dumps(stringy))
+    res = CliRunner().invoke(app, ["report", str(copy)])
+    assert res.exit_code == 2 and "holds a value of the wrong kind" in res.output, res.output
