@@ -36,6 +36,15 @@ _VOXEL_LIMIT = (
     "0.1 m voxels"
 )
 
+#: Counts a user could mean. A frame's Gauss-Newton iterations per pyramid level (defaults 2-12:
+#: each costs a few milliseconds, so 100 is seconds a frame), RANSAC hypotheses (defaults
+#: 500-1000; their arrays grow with the count: 1e9 took 24 GB) and the back end's solver
+#: iterations (defaults 5-100). Larger values never end in practice and, inside a frame, cannot
+#: be stopped by a signal.
+MAX_GN_ITERATIONS = 100
+MAX_RANSAC_ITERATIONS = 100_000
+MAX_SOLVER_ITERATIONS = 10_000
+
 Check = tuple[bool, str, Any, str]
 
 
@@ -51,9 +60,9 @@ def _tracking(t: TrackingConfig) -> list[Check]:
     return [  # fmt: skip
         (t.downsample in (1, 2, 4), "tracking.downsample", t.downsample, "1, 2 or 4"),
         (len(t.iterations) >= 1, "tracking.iterations", t.iterations, "a non-empty list (iterations per pyramid level, coarse to fine)"),
-        (all(i >= 0 for i in t.iterations) and sum(t.iterations) > 0, "tracking.iterations", t.iterations, "non-negative counts, not all 0"),
+        (all(0 <= i <= MAX_GN_ITERATIONS for i in t.iterations) and sum(t.iterations) > 0, "tracking.iterations", t.iterations, f"counts in [0, {MAX_GN_ITERATIONS}], not all 0"),
         (len(t.large_motion_iterations) == len(t.iterations), "tracking.large_motion_iterations", t.large_motion_iterations, f"one count per level of tracking.iterations ({len(t.iterations)} levels)"),
-        (all(i >= 0 for i in t.large_motion_iterations) and sum(t.large_motion_iterations) > 0, "tracking.large_motion_iterations", t.large_motion_iterations, "non-negative counts, not all 0"),
+        (all(0 <= i <= MAX_GN_ITERATIONS for i in t.large_motion_iterations) and sum(t.large_motion_iterations) > 0, "tracking.large_motion_iterations", t.large_motion_iterations, f"counts in [0, {MAX_GN_ITERATIONS}], not all 0"),
         (t.depth_min_m >= 0, "tracking.depth_min_m", t.depth_min_m, ">= 0"),
         (t.depth_max_m > t.depth_min_m, "tracking.depth_max_m", t.depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),
         (t.icp_depth_max_m > t.depth_min_m, "tracking.icp_depth_max_m", t.icp_depth_max_m, f"> tracking.depth_min_m ({t.depth_min_m})"),
@@ -64,7 +73,7 @@ def _tracking(t: TrackingConfig) -> list[Check]:
         (t.degenerate_ratio >= 1, "tracking.degenerate_ratio", t.degenerate_ratio, ">= 1"),
         (t.photometric_ratio >= 1, "tracking.photometric_ratio", t.photometric_ratio, ">= 1"),
         (t.colour_step_weight >= 0, "tracking.colour_step_weight", t.colour_step_weight, ">= 0"),
-        (t.colour_step_iterations >= 1, "tracking.colour_step_iterations", t.colour_step_iterations, ">= 1"),
+        (1 <= t.colour_step_iterations <= MAX_GN_ITERATIONS, "tracking.colour_step_iterations", t.colour_step_iterations, f"in [1, {MAX_GN_ITERATIONS}]"),
         (0 < t.colour_step_textured <= 1, "tracking.colour_step_textured", t.colour_step_textured, "in (0, 1]"),
         (t.colour_step_geometry_stride >= 1, "tracking.colour_step_geometry_stride", t.colour_step_geometry_stride, ">= 1"),
         (t.photometric_reference in ("keyframe", "model"), "tracking.photometric_reference", t.photometric_reference, '"keyframe" or "model"'),
@@ -89,7 +98,7 @@ def _tracking(t: TrackingConfig) -> list[Check]:
         (t.new_segment_after_lost >= 1, "tracking.new_segment_after_lost", t.new_segment_after_lost, ">= 1"),
         (t.ransac.n_features >= 10, "tracking.ransac.n_features", t.ransac.n_features, ">= 10"),
         (0 < t.ransac.ratio <= 1, "tracking.ransac.ratio", t.ransac.ratio, "in (0, 1]"),
-        (t.ransac.iterations >= 1, "tracking.ransac.iterations", t.ransac.iterations, ">= 1"),
+        (1 <= t.ransac.iterations <= MAX_RANSAC_ITERATIONS, "tracking.ransac.iterations", t.ransac.iterations, f"in [1, {MAX_RANSAC_ITERATIONS}]"),
         (t.ransac.inlier_threshold_m > 0, "tracking.ransac.inlier_threshold_m", t.ransac.inlier_threshold_m, "> 0"),
         (t.ransac.min_inliers >= 3, "tracking.ransac.min_inliers", t.ransac.min_inliers, ">= 3"),
     ]
@@ -122,7 +131,7 @@ def _loop(lp: LoopConfig) -> list[Check]:
         (lp.exclude_recent_keyframes >= 0, "loop.exclude_recent_keyframes", lp.exclude_recent_keyframes, ">= 0"),
         (lp.max_candidates >= 1, "loop.max_candidates", lp.max_candidates, ">= 1"),
         (0 < lp.ratio <= 1, "loop.ratio", lp.ratio, "in (0, 1]"),
-        (lp.ransac_iterations >= 1, "loop.ransac_iterations", lp.ransac_iterations, ">= 1"),
+        (1 <= lp.ransac_iterations <= MAX_RANSAC_ITERATIONS, "loop.ransac_iterations", lp.ransac_iterations, f"in [1, {MAX_RANSAC_ITERATIONS}]"),
         (lp.ransac_threshold_m > 0, "loop.ransac_threshold_m", lp.ransac_threshold_m, "> 0"),
         (lp.min_inliers >= 3, "loop.min_inliers", lp.min_inliers, ">= 3"),
         (0 <= lp.min_overlap <= 1, "loop.min_overlap", lp.min_overlap, "in [0, 1]"),
@@ -139,7 +148,7 @@ def _backend(b: BackendConfig) -> list[Check]:
         (b.loop_kernel in ("cauchy", "huber", "none"), "backend.loop_kernel", b.loop_kernel, "cauchy, huber or none"),
         (b.loop_kernel_width > 0, "backend.loop_kernel_width", b.loop_kernel_width, "> 0"),
         (b.loop_prune_sigma > 0, "backend.loop_prune_sigma", b.loop_prune_sigma, "> 0"),
-        (b.max_iterations >= 1, "backend.max_iterations", b.max_iterations, ">= 1"),
+        (1 <= b.max_iterations <= MAX_SOLVER_ITERATIONS, "backend.max_iterations", b.max_iterations, f"in [1, {MAX_SOLVER_ITERATIONS}]"),
     ]
 
 
@@ -159,7 +168,7 @@ def _ba(ba: BAConfig) -> list[Check]:
         (ba.depth_misregistration_px >= 0, "ba.depth_misregistration_px", ba.depth_misregistration_px, ">= 0"),
         (ba.huber_px > 0, "ba.huber_px", ba.huber_px, "> 0"),
         (ba.outlier_chi2 > 0, "ba.outlier_chi2", ba.outlier_chi2, "> 0"),
-        (ba.max_iterations >= 1, "ba.max_iterations", ba.max_iterations, ">= 1"),
+        (1 <= ba.max_iterations <= MAX_SOLVER_ITERATIONS, "ba.max_iterations", ba.max_iterations, f"in [1, {MAX_SOLVER_ITERATIONS}]"),
         (ba.max_observations_per_landmark == 0 or ba.max_observations_per_landmark >= 2, "ba.max_observations_per_landmark", ba.max_observations_per_landmark, ">= 2 (or 0 for all)"),
         (ba.pose_graph_weight >= 0, "ba.pose_graph_weight", ba.pose_graph_weight, ">= 0"),
         (ba.edge_weight_rounds >= 0, "ba.edge_weight_rounds", ba.edge_weight_rounds, ">= 0"),

@@ -47,7 +47,7 @@ def test_missing_file(tmp_path):
         ({"mapping": {"voxel_size_m": -0.01}}, r"'mapping.voxel_size_m' must be in \(0, 0.02\]"),
         ({"tracking": {"depth_max_m": -1}}, r"'tracking.depth_max_m' must be > tracking.depth_min_m"),
         ({"tracking": {"iterations": []}}, r"'tracking.iterations' must be a non-empty list"),
-        ({"tracking": {"iterations": [0, 0]}}, r"'tracking.iterations' must be non-negative"),
+        ({"tracking": {"iterations": [0, 0]}}, r"'tracking.iterations' must be counts in \[0, 100\]"),
         ({"tracking": {"iterations": [4, 2]}}, r"'tracking.large_motion_iterations' must be one count per level of tracking.iterations \(2 levels\)"),
         ({"dataset": {"stride": 0}}, r"'dataset.stride' must be >= 1"),
         ({"dataset": {"max_frames": 0}}, r"'dataset.max_frames' must be >= 1"),

@@ -104,3 +104,21 @@ def test_the_bound_is_on_the_block_edge():
     assert cfg.mapping.voxel_size_m == 0.04
     with pytest.raises(ConfigError, match="'mapping.block_resolution' must be 4, 8 or 16"):
         config_from_dict({"mapping": {"voxel_size_m": 0.01, "block_resolution": 5}})
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("tracking.iterations", [1_000_000_000, 1_000_000_000, 1_000_000_000]),
+        ("tracking.large_motion_iterations", [12, 8, 101]),
+        ("tracking.ransac.iterations", 1_000_000_000),
+        ("loop.ransac_iterations", 1_000_000),
+        ("backend.max_iterations", 10**9),
+        ("ba.max_iterations", 10**9),
+    ],
+)
+def test_counts_no_one_could_mean_are_refused(key, value):
+    """A frame of 1e9 iterations per level never ended and ignored SIGTERM; 1e9 RANSAC
+    hypotheses took 24 GB: counts have an upper bound, named in the error."""
+    with pytest.raises(ConfigError, match=rf"config key '{key}' must be .*in \[\d, \d+\]"):
+        config_from_dict(nested(key, value))
