@@ -65,6 +65,12 @@ def scale_intrinsics(K: np.ndarray, factor: float) -> np.ndarray:
     return Ks
 
 
+#: The fields of view a pinhole depth camera can have (degrees, along either image axis): a
+#: focal length outside gives a matrix no sensor has, and K's inverse overflows near 0.
+MIN_FOV_DEG = 1.0
+MAX_FOV_DEG = 170.0
+
+
 def check_intrinsics(K: object, width: int, height: int, where: str = "K") -> np.ndarray:
     """``K`` as a float 3x3 array when it is a pinhole intrinsic matrix for a ``width`` x
     ``height`` image: finite, ``fx, fy > 0``, no skew, last row ``0 0 1``, principal point
@@ -88,6 +94,14 @@ def check_intrinsics(K: object, width: int, height: int, where: str = "K") -> np
         raise CalibrationError(
             f"{where}: focal lengths must be positive, got fx={fx:g} fy={fy:g}; expected {form}"
         )
+    for f, size, axis in ((fx, width, "fx"), (fy, height, "fy")):
+        fov_deg = float(np.degrees(2.0 * np.arctan(size / (2.0 * f))))
+        if not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG:
+            raise CalibrationError(
+                f"{where}: {axis}={f:g} px gives a field of view of {fov_deg:.3g} degrees across "
+                f"{size} px; a pinhole depth camera's is between {MIN_FOV_DEG:g} and "
+                f"{MAX_FOV_DEG:g} degrees: are the focal lengths in pixels, for this image size?"
+            )
     if not np.array_equal(arr[2], [0.0, 0.0, 1.0]) or arr[0, 1] != 0 or arr[1, 0] != 0:
         raise CalibrationError(
             f"{where}: expected {form} (no skew, last row [0, 0, 1]), got {arr.tolist()}"

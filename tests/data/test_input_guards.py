@@ -212,3 +212,16 @@ def test_extra_columns_are_part_of_the_name_and_the_error_says_so(tmp_path):
         "timestamp; 'depth/0.png' exists: remove the extra columns from the list)"
         in str(info.value)
     )
+
+
+@pytest.mark.parametrize("f", [1e-30, 1e-3, 1e30])
+def test_a_focal_length_no_sensor_has_is_a_calibration_error(f):
+    """fx = 1e-30 gave numpy's LinAlgError deep in the tracker: refused up front, with the
+    field of view it implies."""
+    from slam.camera import check_intrinsics
+    from slam.errors import CalibrationError
+
+    K = [[f, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]]
+    with pytest.raises(CalibrationError, match="field of view"):
+        check_intrinsics(K, 640, 480)
+    check_intrinsics([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]], 640, 480)
