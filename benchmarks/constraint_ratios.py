@@ -32,7 +32,7 @@ def ratios(path, samples: int) -> np.ndarray:
     seq = slam.open_sequence(path, cfg.dataset.layout, cfg.dataset.calibration)
     idx = np.unique(np.linspace(0, len(seq) - 1, min(samples, len(seq))).astype(int))
     return np.array(
-        [PreparedFrame.build(seq[int(i)], cfg.tracking, None, False).constraint_ratio for i in idx]
+        [PreparedFrame.build(seq[int(i)], cfg.tracking, None).constraint_ratio for i in idx]
     )
 
 

@@ -6,7 +6,7 @@ A box room (4 x 3 x 2.5 m) is rendered exactly from 12 views, fused into a TSDFV
 mapping config) with the whole scene turned by a rotation R relative to the grid, then
 ray-cast from 4 of the views; the mean rendered-minus-true depth is the bias. R = identity
 (walls along the grid's axes) and 5 random turns. A bias that changes with R is what two
-submaps with differently turned grids disagree by (docs/benchmarks.md, issue 20 third part).
+submaps with differently turned grids disagree by (docs/archive/journal.md, issue 20 third part).
 """
 
 from __future__ import annotations

@@ -15,9 +15,6 @@ later frame, each kernel is called ``--reps`` times as the pipeline calls it:
   from its tracking depth included (as frame-to-model tracking does);
 - ``odometry``: one coarse-to-fine point-to-plane ICP of the frame's tracking depth to that
   rendering (``PreparedFrame.icp_to``);
-- ``odometry_numpy``: the same ICP by the project's own vectorised numpy kernel (the
-  noise-weighted one of ``slam.frontend.weighted_icp``; its source points are built once,
-  with the frame);
 - ``prepare``: the frame's tracking inputs (downsampling, bilateral filter, pyramid).
 
 Writes medians (ms) to ``benchmarks/results/kernel-floors-<sequence>.json``. Time nothing else
@@ -74,17 +71,13 @@ def child(sequence: str, threads: int, reps: int) -> dict:
     out = {}
     for downsample in (1, 2, 4):
         cfg = config_from_dict({"tracking": {"downsample": downsample}})
-        cfg_w = config_from_dict(
-            {"tracking": {"downsample": downsample, "icp_noise_weighting": True}}
-        )
         vol = TSDFVolume(cfg.mapping, has_color=True)
         poses = [by_time.get(round(f.timestamp, 6)) for f in frames]
         for f, T in zip(frames[:FUSED_FRAMES], poses[:FUSED_FRAMES], strict=True):
             if T is not None:
                 vol.integrate(f.depth_m, f.color, f.K, T)
         f, T = frames[TIMED_FRAME], poses[TIMED_FRAME]
-        p = PreparedFrame.build(f, cfg.tracking, None, False)
-        p_w = PreparedFrame.build(f, cfg_w.tracking, None, False)  # its source points built
+        p = PreparedFrame.build(f, cfg.tracking, None)
         w, h = p.size
 
         def render(p=p, T=T, w=w, h=h, vol=vol):
@@ -94,17 +87,11 @@ def child(sequence: str, threads: int, reps: int) -> dict:
         row = {
             "size": f"{w}x{h}",
             "prepare": _median_ms(
-                lambda f=f, cfg=cfg: PreparedFrame.build(f, cfg.tracking, None, False), reps
+                lambda f=f, cfg=cfg: PreparedFrame.build(f, cfg.tracking, None), reps
             ),
             "ray_cast": _median_ms(render, reps),
             "odometry": _median_ms(
                 lambda p=p, t=target, c=cfg: p.icp_to(t, np.eye(4), c.tracking), reps
-            ),
-            # the same coarse-to-fine ICP by this project's own numpy kernel (the
-            # noise-weighted point-to-plane of slam.frontend.weighted_icp): what a kernel of
-            # our own costs against Open3D's
-            "odometry_numpy": _median_ms(
-                lambda p=p_w, t=target, c=cfg_w: p.icp_to(t, np.eye(4), c.tracking), reps
             ),
             "integrate": _median_ms(
                 lambda f=f, T=T, vol=vol: vol.integrate(f.depth_m, f.color, f.K, T), reps

@@ -66,10 +66,11 @@ def main(argv: list[str] | None = None) -> int:
                 f = seq[j]
                 vol.integrate(f.depth_m, f.color, f.K, true_pose(j))
             f = seq[k]
-            p = PreparedFrame.build(f, cfg.tracking, None, True, colour_registered=True)
+            p = PreparedFrame.build(f, cfg.tracking, None, colour_registered=True)
+            p.photometric_image(levels)  # the joint alignment's grey pyramids
             w, h = p.size
             r = vol.raycast(p.K_track, w, h, true_pose(k), False, True, frustum_depth_m=p.depth_m)
-            prev = PreparedFrame.build(seq[k - 1], cfg.tracking, None, True, colour_registered=True)
+            prev = PreparedFrame.build(seq[k - 1], cfg.tracking, None, colour_registered=True)
             ref = prev.photometric_image(levels)
             assert ref is not None and ref.intensity is not None
             warped = warp_intensity(

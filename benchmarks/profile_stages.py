@@ -2,7 +2,7 @@
 
     python benchmarks/profile_stages.py demo              # or tum-fr1-xyz, a folder
     python benchmarks/profile_stages.py demo --top 25
-    python benchmarks/profile_stages.py tum-fr1-xyz --config benchmarks/unusual_departure.yaml
+    python benchmarks/profile_stages.py tum-fr1-xyz --config benchmarks/ba_off.yaml
     python benchmarks/profile_stages.py tum-fr1-xyz --tree /path/to/other/tree --tag=-old
 
 Runs ``slam.run`` once under cProfile in this process (default config) and writes the

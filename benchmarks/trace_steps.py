@@ -3,7 +3,6 @@ against ground truth, and, for chosen frames, every frame-to-model alignment tra
 
     python benchmarks/trace_steps.py ~/.cache/rgbd-slam/matrix/wall-x1-s1-240-v1
     python benchmarks/trace_steps.py SEQ --frames 85-90 --tree /path/to/other/tree
-    python benchmarks/trace_steps.py SEQ --frames 85-90 --config benchmarks/covisible_colour.yaml
 
 The run steps a :class:`slam.Slam` frame by frame (the default config, or ``--config``'s
 overrides; ``--tree``: import ``slam`` from another source tree). ``--frames A-B`` prints, for each of those frames, each

@@ -15,9 +15,8 @@ from slam.errors import CalibrationError
 @dataclass(frozen=True)
 class DepthNoise:
     """Axial depth noise ``sigma(z) = sigma0_m + quadratic * (z - z0_m)^2`` in metres: a
-    structured-light sensor's (Nguyen, Izadi, Lovell 2012, Kinect v1). Tracking weighs ICP
-    residuals by it (``tracking.icp_noise_weighting``), fusion each observation
-    (``mapping.fusion_noise_weighting``)."""
+    structured-light sensor's (Nguyen, Izadi, Lovell 2012, Kinect v1): tracking weighs depth's
+    information by it (the constraint analysis) and scales its overlap checks."""
 
     sigma0_m: float = 0.0012
     quadratic: float = 0.0019
@@ -28,11 +27,6 @@ class DepthNoise:
         return np.float32(self.sigma0_m) + np.float32(self.quadratic) * (
             z - np.float32(self.z0_m)
         ) ** 2
-
-    def weight(self, z: np.ndarray) -> np.ndarray:
-        """Relative information of a depth measured at ``z``: ``(sigma(z0) / sigma(z))^2``, 1 at
-        ``z0_m`` and below 1 farther away (1 m: 0.41, 2 m: 0.039, 3 m: 0.007)."""
-        return (np.float32(self.sigma0_m) / self.sigma(z)) ** 2
 
 
 def backproject(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -61,7 +61,7 @@ class TrackingConfig:
     # RANSAC seed or a far guess), which starts centimetres from the optimum and needs more
     # Gauss-Newton steps to converge: on the cabinet's 0.66 s steps [6, 4, 2] stopped short
     # (0.020-0.042 m between runs of one tree); twice, three and four times the steps give
-    # the same 0.017 m (docs/benchmarks.md, session 22). Same number of levels as iterations
+    # the same 0.017 m (docs/archive/journal.md). Same number of levels as iterations
     large_motion_iterations: list[int] = field(default_factory=lambda: [12, 8, 4])
     depth_min_m: float = 0.2
     depth_max_m: float = 4.0
@@ -70,12 +70,8 @@ class TrackingConfig:
     # all depth up to depth_max_m (far scenes)
     icp_depth_max_m: float = 2.5
     icp_near_fraction: float = 0.3
-    # instead: every ICP level weighs each residual by the depth sensor's axial noise,
-    # sigma(z) = depth_noise_sigma0_m + depth_noise_quadratic * (z - 0.4 m)^2 (Nguyen, Izadi,
-    # Lovell 2012, Kinect v1), on all depth up to depth_max_m (slam.frontend.weighted_icp). Off:
-    # measured worse on tum-fr1-xyz (odometry 0.0132 vs 0.0112 m) and the cabinet (0.047-0.097
-    # vs 0.022-0.026 m), better on 7-Scenes (0.0358 vs 0.0377 m); see docs/benchmarks.md
-    icp_noise_weighting: bool = False
+    # the depth sensor's axial noise, sigma(z) = depth_noise_sigma0_m + depth_noise_quadratic *
+    # (z - 0.4 m)^2 (m; Nguyen, Izadi, Lovell 2012, Kinect v1): weighs depth's information
     depth_noise_sigma0_m: float = 0.0012
     depth_noise_quadratic: float = 0.0019
     # projective correspondences farther apart are rejected (at the finest level; 3 cm is the
@@ -95,12 +91,6 @@ class TrackingConfig:
     hypotheses: bool = True  # large motion, poor overlap: also try identity/velocity/RANSAC guesses
     hypothesis_overlap: float = 0.75  # ... unless the first estimate already overlaps this well
     relocalisation_keyframes: int = 5  # RANSAC tries this many recent keyframes when needed
-    # colour in tracking (only where colour is registered to depth, see dataset.color_registered):
-    # weight of the photometric term of a joint photometric + geometric frame-to-model alignment
-    # against the model's ray-cast colour (slam.frontend.photometric); 0 = depth only. Off: at
-    # 1.0 it measured no better on tum-fr1-xyz and worse on the demo and the cabinet, ~2x slower
-    photometric_weight: float = 0.0
-    photometric_frame_to_frame: bool = False  # ... the frame-to-frame alignment joint too
     # a step departing from the constant-velocity prediction by more than a hand-held camera
     # can accelerate in the frame interval (max_acceleration_m_s2 * dt^2: 11 mm at 30 Hz) is
     # not taken from depth alone: the frame is aligned again with colour joining depth at this
@@ -108,11 +98,6 @@ class TrackingConfig:
     # filling the view or a corridor; texture does not
     max_acceleration_m_s2: float = 10.0
     motion_check_photometric_weight: float = 1.0
-    # opt-in: nor a frame whose frame-to-frame and model ICP end further apart than that bound
-    # (one of them slid): every hall row's odometry 8-35% better, but two rows' worst steps
-    # worse beyond their spread (a desk on exact depth, a wall with colour 15 ms off depth;
-    # docs/benchmarks.md, session 32)
-    depth_disagreement_check: bool = False
     # nor a frame whose departure from the prediction, as an acceleration (departure / dt^2),
     # is more than this many times the median of the last unusual_departure_window frames'
     # (0 = off; the recording's own motion pattern, from every estimate kept, aligned with
@@ -127,7 +112,7 @@ class TrackingConfig:
     # desks' odometry 1.3-4.6x better, the walls' worst steps up to 2x smaller, the real rows
     # level, no row worse beyond its spread; tracking + fusion 0.91 (fr1) and 0.97 (demo) of
     # the issue's baseline, but synthetic desks 0.5-0.75x the check off (it aligns again with
-    # colour on ~40% of their frames). docs/benchmarks.md, sessions 33-38
+    # colour on ~40% of their frames). docs/archive/journal.md
     unusual_departure_factor: float = 3.0
     unusual_departure_window: int = 30
     # geometry is blind when the frame's own depth constrains the pose this many times worse
@@ -150,11 +135,6 @@ class TrackingConfig:
     # weak direction by the model's own sub-millimetre bias times about the ratio (wall rows:
     # 11 mm a frame at ratios 22-27; benchmarks/self_render_bias.py)
     photometric_ratio: float = 20.0
-    # opt-in: a frame-to-model alignment depth alone would make is made with colour too where
-    # the part of the frame the model holds has a ratio above photometric_ratio (a frame that
-    # looks at what is new: the halls' worst step 32 -> 7 mm, their final ATE 10-35% better,
-    # but two wall rows' worst steps 15-35% worse; docs/benchmarks.md, session 29)
-    covisible_colour: bool = False
     # every tracked frame's pose (where colour is registered) is refined against the previous
     # frame's image: depth's estimate a prior with its point-to-plane information, colour's
     # photometric cost at this weight times what colour has earned on the recording (its
@@ -164,7 +144,7 @@ class TrackingConfig:
     # a corridor) colour holds the frame. 0 = off. Colour's term on the colour_step_textured
     # fraction of the pixels whose intensity changes fastest (1: all; its information is the
     # image gradient), depth's information on every colour_step_geometry_stride-th row and
-    # column (1 or 2): 0.125 and 2 cost a fifth of all pixels (docs/benchmarks.md, session 28)
+    # column (1 or 2): 0.125 and 2 cost a fifth of all pixels (docs/archive/journal.md)
     colour_step_weight: float = 0.0
     colour_step_iterations: int = 2
     colour_step_textured: float = 0.125
@@ -178,7 +158,7 @@ class TrackingConfig:
     # and two halls drifted 25-70% more with 1 than with the model's colour); the mean of
     # photometric_keyframes of them averages it: on the scene matrix with 5, fast walls and
     # corridors 0.008-0.009 -> 0.003-0.006 m, fast halls 0.016 -> 0.010-0.013 (median), no row
-    # worse beyond its spread (docs/benchmarks.md, session 18)
+    # worse beyond its spread (docs/archive/journal.md)
     photometric_reference: str = "keyframe"
     photometric_keyframes: int = 5
     keyframe_translation_m: float = 0.15
@@ -205,7 +185,7 @@ class TrackingConfig:
     # tracking's model everywhere, weight 1 or 2 made fast walls slide more (single-frame
     # surfaces at the view's edge, where the weak direction is held), and relocalisation
     # (depth against a keyframe's depth) places a frame better; last, a hall panned at
-    # 135 deg/s lost 0 frames instead of 12 (docs/benchmarks.md, session 30)
+    # 135 deg/s lost 0 frames instead of 12 (docs/archive/journal.md)
     rescue_min_weight: float = 1.0
     # while lost, every frame is relocalised against the map's keyframes (at most this many
     # candidates a frame); after this many lost frames with usable depth a new map segment starts
@@ -233,15 +213,8 @@ class MappingConfig:
     # trilinear TSDF: the ray-caster's voxel-pattern error (about 3 mm median at 1 cm voxels)
     # falls to 0.3 mm, for a second ray-cast and a numpy gather a render. Opt-in: the real
     # sequences and desks track better (cabinet 0.026 -> 0.018 m), some walls, halls and fast
-    # rooms worse, and tracking + fusion runs at 0.69x the fps (docs/benchmarks.md, session 15)
+    # rooms worse, and tracking + fusion runs at 0.69x the fps (docs/archive/journal.md)
     raycast_refine: bool = False
-    # each observation fused with the weight of its depth's noise, (sigma(z0) / sigma(z))^2 of
-    # slam.camera.DepthNoise (Kinect v1), instead of 1: a surface seen near and then far keeps
-    # its near shape. The weight thresholds still count observations. Opt-in: a corridor walked
-    # along renders 11% nearer the truth, panned scenes not at all; on the matrix the cabinet
-    # and the corridors gained a little, the halls moved both ways; tracking + fusion 0.95x the
-    # fps (docs/benchmarks.md, session 16)
-    fusion_noise_weighting: bool = False
     mesh_weight_threshold: float = 3.0
     # submaps: each fused in the frame of its anchor keyframe, re-fused under corrected anchors
     submap_keyframes: int = 10  # a new submap every this many keyframes (0: a single map)
@@ -341,7 +314,7 @@ class BAConfig:
     # in quadrature (0: off). One noise for every keypoint had to be 5x the sensor's for fr1's
     # corners (keyframe ATE 12.1 mm at 0.004, 10.2 mm at 0.02) and then let BA slide along a
     # textured wall (synthetic wall-x1-s1: final 0.0188 m against odometry 0.0081 m; with the
-    # slope: 0.0059 m; fr1 unchanged; docs/benchmarks.md)
+    # slope: 0.0059 m; fr1 unchanged; docs/archive/journal.md)
     pixel_sigma_px: float = 1.0
     depth_sigma_m: float = 0.004
     depth_misregistration_px: float = 2.0
@@ -358,17 +331,9 @@ class BAConfig:
     # landmarks only). Where tracks are short (a keyframe's landmarks seen by 2-3 keyframes)
     # sparse features alone drift more than dense ICP odometry. How accurate the edges are
     # against the landmarks differs by orders of magnitude between sequences (at the true
-    # poses, exact synthetic depth: 0.005 of the variance assumed at 100, tum-fr1-xyz 46x),
-    # so the final adjustment can estimate the weight from its own residuals, starting here,
-    # in up to edge_weight_rounds rounds (variance component estimation,
-    # slam.backend.variance_components; 0: the weight stays fixed). Without a loop among the
-    # edges it is only ever raised (the estimate's bias lowers it where edges are checked by
-    # landmarks alone); mid-run adjustments keep this weight. Opt-in (3): on the scene matrix
-    # 13 rows gained (room-x2-s0 0.0021 -> 0.0013 m, the exact corridors, 7-Scenes 0.0383 ->
-    # 0.0371), but tum-fr1-xyz-x3 (0.0082 -> 0.0086) and corridor-x2-s0 (0.0036 -> 0.0040)
-    # lost beyond their spread (docs/benchmarks.md, session 26)
+    # poses, exact synthetic depth: 0.005 of the variance assumed at 100, tum-fr1-xyz 46x);
+    # the weight is fixed (estimating it from the residuals: docs/decisions.md)
     pose_graph_weight: float = 100.0
-    edge_weight_rounds: int = 0
     # an adjustment with fewer inlier observations than this per keyframe is not used (the
     # pose graph stands): too few landmarks to beat the depth odometry (tum-fr3-cabinet-kf58,
     # 46 per keyframe: 57 -> 66 mm; the sequences above: 130-215)

@@ -171,7 +171,6 @@ def _ba(ba: BAConfig) -> list[Check]:
         (1 <= ba.max_iterations <= MAX_SOLVER_ITERATIONS, "ba.max_iterations", ba.max_iterations, f"in [1, {MAX_SOLVER_ITERATIONS}]"),
         (ba.max_observations_per_landmark == 0 or ba.max_observations_per_landmark >= 2, "ba.max_observations_per_landmark", ba.max_observations_per_landmark, ">= 2 (or 0 for all)"),
         (ba.pose_graph_weight >= 0, "ba.pose_graph_weight", ba.pose_graph_weight, ">= 0"),
-        (ba.edge_weight_rounds >= 0, "ba.edge_weight_rounds", ba.edge_weight_rounds, ">= 0"),
         (ba.min_observations_per_keyframe >= 0, "ba.min_observations_per_keyframe", ba.min_observations_per_keyframe, ">= 0"),
         (ba.unregistered_depth_sigma_m > 0, "ba.unregistered_depth_sigma_m", ba.unregistered_depth_sigma_m, "> 0"),
     ]

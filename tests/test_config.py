@@ -74,3 +74,20 @@ def test_unknown_key_suggests_the_right_one():
         config_from_dict({"mapping": {"voxel_size": 0.01}})
     with pytest.raises(ConfigError, match="'join_verifications' belongs in section 'loop'"):
         config_from_dict({"dataset": {"join_verifications": 2}})
+
+
+def test_every_yaml_the_project_ships_loads():
+    """Each config YAML under benchmarks/ loads (colour_step_full.yaml named a removed key);
+    each bench suite under scripts/ loads as a suite."""
+    from pathlib import Path
+
+    from slam.tools.bench_suite import load_suite
+
+    root = Path(__file__).resolve().parents[1]
+    configs = sorted((root / "benchmarks").glob("*.yaml"))
+    suites = sorted((root / "scripts").glob("*.yaml"))
+    assert configs and suites
+    for path in configs:
+        load_config(path)
+    for path in suites:
+        load_suite(path)

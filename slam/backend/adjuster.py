@@ -132,14 +132,11 @@ class BundleAdjuster:
     ) -> BAResult:
         """Bundle adjustment from ``poses`` (``T_world_kf``, e.g. the pose graph's nodes) over
         the keyframes ``kf_ids`` (default all), ``fixed`` ones held; ``edges`` (the pose
-        graph's) join with weight ``ba.pose_graph_weight``; with ``ba.edge_weight_rounds`` > 0
-        (opt-in) the final adjustment (``reason`` ``finish``) then estimates that weight from
-        its residuals (:mod:`slam.backend.variance_components`). Outlier observations are
+        graph's) join with weight ``ba.pose_graph_weight``. Outlier observations are
         removed from the tracks. ``result.poses`` has every keyframe of ``poses``; when BA
         cannot run (see :attr:`skip_reason`, or no landmark seen twice) ``result.skipped`` says
         why and ``result.poses`` is empty."""
-        rounds = self.cfg.edge_weight_rounds if reason == "finish" else 0
-        return self._record(self._run(*self._snapshot(poses, edges, kf_ids), fixed, rounds), reason)
+        return self._record(self._run(*self._snapshot(poses, edges, kf_ids), fixed), reason)
 
     def _snapshot(
         self,
@@ -160,7 +157,6 @@ class BundleAdjuster:
         poses: dict[int, np.ndarray],
         edges: list[Edge],
         fixed: Iterable[int] | None,
-        edge_weight_rounds: int = 0,
     ) -> BAResult:
         if problem is None:
             return BAResult(skipped=self.skip_reason)
@@ -173,7 +169,6 @@ class BundleAdjuster:
             edges=edges,
             edge_weight=cfg.pose_graph_weight,
             loop_kernel_width=self.loop_kernel_width,
-            edge_weight_rounds=edge_weight_rounds,
         )
 
     def _record(self, result: BAResult, reason: str = "global") -> BAResult:

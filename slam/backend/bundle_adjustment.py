@@ -32,9 +32,7 @@ landmarks dominate; where they are short (each landmark seen by 2-3 keyframes) s
 alone would drift more than dense ICP odometry does, and the edges hold the keyframes; a
 keyframe no landmark constrains moves with its neighbours instead of staying behind. How much
 the edges should weigh differs by orders of magnitude between sequences (exact synthetic depth
-against a real Kinect); with ``edge_weight_rounds`` the weight is estimated from the
-solution's residuals, each group's against its redundancy, and the problem solved again
-(:mod:`slam.backend.variance_components`).
+against a real Kinect); the weight is fixed (``ba.pose_graph_weight``).
 
 What BA does on the sequences that cannot feed it (:class:`BundleAdjuster`):
 
@@ -63,7 +61,6 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from slam.backend import variance_components
 from slam.backend.ba_problem import BAProblem, BAResult, BundleAdjustmentError
 from slam.backend.pose_graph import Edge
 from slam.config import BAConfig
@@ -74,8 +71,6 @@ log = logging.getLogger(__name__)
 
 #: virtual stereo baseline (metres); any value gives the same solution (see the docstring)
 VIRTUAL_BASELINE_M = 0.08
-#: the edges' weight has settled when an estimate moves it by less than this factor
-WEIGHT_TOLERANCE = 1.1
 #: chi^2 95% quantiles: 3 dof (pixel + depth), 2 dof (pixel only)
 CHI2_3DOF = 7.815
 CHI2_2DOF = 5.991
@@ -206,7 +201,7 @@ class _Solver:
     stereo factor per observation with depth (a projection factor without), noise by ORB
     pyramid level under a Huber kernel, the pose graph's ``edges`` (loops under a Cauchy
     kernel) at ``edge_weight``, and a prior on the ``fixed`` keyframes (at least one per
-    connected part: the gauge). ``solution``: the last solve's graph, values and pose keys."""
+    connected part: the gauge)."""
 
     def __init__(
         self,
@@ -221,7 +216,9 @@ class _Solver:
         self.edge_weight, self.loop_kernel_width = edge_weight, loop_kernel_width
         sigma = float(cfg.pixel_sigma_px)
         K = self.K = problem.K
-        self.calib = gtsam.Cal3_S2Stereo(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2], VIRTUAL_BASELINE_M)
+        self.calib = gtsam.Cal3_S2Stereo(
+            K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2], VIRTUAL_BASELINE_M
+        )
         self.calib_mono = gtsam.Cal3_S2(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2])
         huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_px / sigma)
         # one noise model per ORB pyramid level (a keypoint's pixel noise grows with its level)
@@ -320,35 +317,7 @@ class _Solver:
         for k in start:  # keyframes no longer in the problem keep their pose
             out_poses.setdefault(k, np.asarray(start[k]))
         out_pts = np.array([res.atPoint3(_l(i)) for i in range(prob.n_landmarks)]).reshape(-1, 3)
-        self.solution = (graph, res, [_x(k) for k in kf_ids])
         return out_poses, out_pts, opt.iterations(), e0, graph.error(res)
-
-    def settle_edge_weight(
-        self, prob: BAProblem, poses: dict[int, np.ndarray], pts: np.ndarray, rounds: int
-    ) -> tuple[dict[int, np.ndarray], np.ndarray, int, float | None]:
-        """Up to ``rounds`` times: estimate the edges' weight from the last solution's
-        residuals (:func:`variance_components.estimate`, :func:`variance_components.next_weight`)
-        and, when it moved by more than :data:`WEIGHT_TOLERANCE`, solve again from there.
-        Returns the poses, points, iterations and error of the last solve (None: none ran)."""
-        iters, err = 0, None
-        start = self.edge_weight
-        cycles = variance_components.edge_cycles([(e.i, e.j) for e in self.edges])
-        for _ in range(rounds):
-            vc = variance_components.estimate(*self.solution)
-            if vc is None:
-                break
-            weight = variance_components.next_weight(self.edge_weight, start, vc, cycles)
-            log.debug(
-                "edge weight %.3g -> %.3g (landmark variance factor %.3g, edges %.3g)",
-                self.edge_weight, weight, vc.landmark_factor, vc.edge_factor,
-            )  # fmt: skip
-            settled = abs(np.log(weight / self.edge_weight)) < np.log(WEIGHT_TOLERANCE)
-            self.edge_weight = weight
-            if settled:
-                break
-            poses, pts, it, _, err = self.optimise(prob, pts, poses)
-            iters += it
-        return poses, pts, iters, err
 
 
 def bundle_adjust(
@@ -359,7 +328,6 @@ def bundle_adjust(
     edges: Sequence[Edge] = (),
     edge_weight: float = 1.0,
     loop_kernel_width: float = 2.0,
-    edge_weight_rounds: int = 0,
 ) -> BAResult:
     """Optimise the poses of the keyframes observed in ``problem`` (plus those joined by
     ``edges``) and the landmark positions, starting from ``poses`` (``T_world_kf`` by id) and
@@ -370,9 +338,7 @@ def bundle_adjust(
     connected part fixes the gauge). ``edges``: relative-pose edges (the pose graph's
     :class:`~slam.backend.pose_graph.Edge`; loop edges get a Cauchy kernel of width
     ``loop_kernel_width``) with information scaled by ``edge_weight``; only edges between
-    keyframes in ``poses`` are used. ``edge_weight_rounds`` > 0: then the edges' weight is
-    estimated from the solution's residuals and the problem solved again at it, up to that many
-    times (:meth:`_Solver.settle_edge_weight`); ``result.edge_weight`` is the last estimate.
+    keyframes in ``poses`` are used.
     """
     t0 = time.perf_counter()
     sigma = float(cfg.pixel_sigma_px)
@@ -401,12 +367,6 @@ def bundle_adjust(
         pts_in = pts[np.searchsorted(problem.landmark_ids, prob.landmark_ids)]
         new_poses, pts, it2, _, err1 = solver.optimise(prob, pts_in, new_poses)
         iters += it2
-    if edges and edge_weight_rounds > 0:
-        new_poses, pts, it3, err3 = solver.settle_edge_weight(
-            prob, new_poses, pts, edge_weight_rounds
-        )
-        iters += it3
-        err1 = err1 if err3 is None else err3
     reproj1, _ = residuals(prob, new_poses, pts, sigma, depth_sigmas(prob, cfg))
     changes = [inv_T(np.asarray(poses[k])) @ new_poses[k] for k in new_poses]
     result = BAResult(

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slam.config import TrackingConfig
-from slam.frontend.frame import PreparedFrame, constraint_level, constraint_ratio, depth_noise
+from slam.frontend.frame import PreparedFrame, depth_noise
 from slam.frontend.icp import IcpResult, projective_agreement
 from slam.frontend.keyframe_ransac import FeatureEvidence, KeyframeRansac
 from slam.frontend.model import TrackingModel
@@ -67,7 +67,7 @@ class Attempt:
     overlap: float = 0.0  # ... and its verified overlap with the model ray-cast
     ok: bool = False  # the best estimate passes the checks
     # colour joins depth in every alignment of this attempt (weight of the photometric term;
-    # 0: depth alone, unless tracking.photometric_weight puts colour everywhere)
+    # 0: depth alone)
     photometric: float = 0.0
     # ICP iterations per level of this attempt's alignments (None: tracking.iterations; a
     # large or unknown motion: tracking.large_motion_iterations)
@@ -94,16 +94,6 @@ class Attempt:
         """The estimate overlaps the model and ICP found enough correspondences."""
         assert self.icp is not None
         return self.overlap >= cfg.min_overlap and self.icp.fitness >= cfg.min_fitness
-
-    def depth_disagreement(self) -> float:
-        """How far apart (m) depth's two estimates of the frame are: frame-to-frame ICP (depth
-        alone, :attr:`f2f`) and the model ICP that started from it. 0 when there is no such
-        pair: no frame-to-frame result, a large motion (its hypotheses each have their own) or
-        a RANSAC rescue (the estimate kept did not start from it)."""
-        if self.f2f is None or self.large or self.status.path != "icp":
-            return 0.0
-        assert self.T_world_cam is not None
-        return translation_norm(inv_T(self.T_world_prev @ self.f2f) @ self.T_world_cam)
 
     def features(self) -> FeatureSet | None:
         """The frame's features, from now on used by this attempt (None without colour)."""
@@ -164,7 +154,7 @@ class Attempt:
 def joint_weight(cfg: TrackingConfig, att: Attempt) -> float | None:
     """The photometric weight of this attempt's alignments, None for depth alone (or when the
     frame has no registered colour)."""
-    weight = att.photometric or cfg.photometric_weight
+    weight = att.photometric
     if weight <= 0 or att.frame.photometric_image(len(cfg.iterations)) is None:
         return None
     return weight
@@ -194,37 +184,6 @@ def colour_prefers(cfg: TrackingConfig, att: Attempt, steps: list[np.ndarray]) -
     return int(np.argmin(costs))
 
 
-def covisible_ratio(cfg: TrackingConfig, p: PreparedFrame, model_depth_m: np.ndarray) -> float:
-    """The constraint ratio of the frame's depth where the model has a surface to align it to
-    (``model_depth_m``, a ray-cast from the frame's guessed pose), as the frame's own ratio is
-    computed (:func:`~slam.frontend.weighted_icp.depth_constraint` on pyramid level 1): how
-    blind the frame-to-model alignment is. A frame that looks at what the model does not hold
-    yet (a near object panned into view) can be constrained by that part alone."""
-    level = constraint_level(p.pyramid)
-    d = p.pyramid[level]
-    seen = model_depth_m[:: 2**level, :: 2**level][: d.shape[0], : d.shape[1]] > 0
-    if seen[d > 0].all():
-        return p.constraint_ratio
-    return constraint_ratio(p.pyramid, p.K_track, p.icp_depth_max_m, depth_noise(cfg), seen)
-
-
-def covisible_colour(cfg: TrackingConfig, att: Attempt, model_depth_m: np.ndarray) -> float | None:
-    """With ``tracking.covisible_colour`` (opt-in), for a frame-to-model alignment depth alone
-    would make: the photometric weight colour joins it with where the part of the frame the
-    model holds is weak (:func:`covisible_ratio` above ``photometric_ratio``, as the frame's
-    own ratio is judged in ``Tracker.predict``). None where it is not, where the motion is
-    beyond colour's reach, or without registered colour. The frame's other alignments stay as
-    they were, so ``Tracker.check_motion`` still guards a step depth alone made."""
-    weight = cfg.motion_check_photometric_weight
-    if not cfg.covisible_colour or weight <= 0:
-        return None
-    if not att.colour_reach or not att.frame.colour_registered:
-        return None
-    if covisible_ratio(cfg, att.frame, model_depth_m) <= cfg.photometric_ratio:
-        return None
-    return weight if att.frame.photometric_image(len(cfg.iterations)) is not None else None
-
-
 def align_to_model(
     cfg: TrackingConfig,
     att: Attempt,
@@ -244,16 +203,6 @@ def align_to_model(
         p.K_track, w, h, T_world_guess, False, joint is not None and not refs,
         frustum_depth_m=p.depth_m, min_weight=att.min_weight,
     )  # fmt: skip
-    if joint is None:
-        joint = covisible_colour(cfg, att, render.depth_m)
-        if joint is not None:
-            att.status.photometric = True
-            refs = att.references
-            if not refs:  # the model's own colour
-                render = model.raycast(
-                    p.K_track, w, h, T_world_guess, False, True, frustum_depth_m=p.depth_m,
-                    min_weight=att.min_weight,
-                )  # fmt: skip
     if refs:
         # the references' real images seen from the guess, through the model's depth: a
         # TSDF's own colour is smeared along the rays it was fused from (unseen pixels: NaN)
@@ -301,9 +250,7 @@ def align_from(
     panned fast, ICP slid a RANSAC seed of 236 inliers 6 cm to a pose 25 matches agree with)."""
     p = att.frame
     if cfg.frame_to_frame and att.prev_depth is not None:
-        joint = None
-        if att.photometric > 0 or cfg.photometric_frame_to_frame:
-            joint = joint_weight(cfg, att)
+        joint = joint_weight(cfg, att) if att.photometric > 0 else None
         prev = None  # the previous frame's grey pyramids, built only when colour joins depth
         if joint is not None and att.prev_frame is not None:
             prev = att.prev_frame.photometric_image(len(cfg.iterations))

@@ -36,69 +36,72 @@ PROBES = 5
 def check_motion(
     cfg: TrackingConfig, state: TrackerState, att: Attempt, model: TrackingModel
 ) -> None:
-    """Stage 4b: a step that breaks the motion pattern, or that depth's two estimates
-    disagree on, is not accepted on depth alone. The bound is what a hand-held camera can
-    accelerate over the interval (``max_acceleration_m_s2 * dt^2``). When the estimate
-    departs from the constant-velocity prediction by more, or (opt-in,
-    ``tracking.depth_disagreement_check``) frame-to-frame ICP and the model ICP that
-    started from it end further apart (one of them slid), depth may be
-    sliding where its geometry is blind (a wall filling the view, a corridor, a far hall):
-    the frame is aligned again, frame to frame and then to the model, with colour joining
-    depth (where colour is registered), from the prediction, and that estimate is kept when
-    it passes the checks. (Aligning to the model alone, or keeping the colour estimate only
-    where it disagrees with depth by more than the bound, let slides through on the fast
-    wall and corridor rows of the scene matrix; the disagreement of depth's two estimates
-    catches slides the prediction does not: a wall whose frame-to-frame ICP slid 25 mm
-    and the model ICP took back to 7 mm, within the bound of the prediction. See
-    docs/benchmarks.md, session 32.) And a departure below the bound but more than
-    ``tracking.unusual_departure_factor`` times this recording's usual one (the median
-    acceleration of the last ``unusual_departure_window`` estimates kept) breaks the
-    recording's own motion pattern (a smooth pan's slides stand out against it). Such a
-    step is first scored by the images on the way from depth's step to the prediction
-    (:func:`~slam.frontend.alignment.colour_prefers` at :func:`_towards_prediction`'s
-    points, a few milliseconds where aligning again costs a hundred): where depth's end is
-    the cheapest, it stands; else the frame is aligned again, and colour's estimate is kept
-    only when it departs less than depth's (a hand-held Kinect's colour moved such steps
-    away: on tum-fr1-xyz depth's end was the cheapest in 11 of its 24 unusual steps; every
-    slide of the wall and desk rows below the bound scored worse than a point nearer the
-    prediction). Every frame's departure, of the estimate kept, joins the pattern
-    (:attr:`Attempt.acceleration`), a frame aligned with colour already (its depth blind) too,
-    unchecked: a far hall tracked with colour for 40 frames had no pattern then, and its first
-    depth-only frames slid 12 mm each, below the bound (docs/benchmarks.md, session 37)."""
+    """Stage 4b: a step that breaks the motion pattern is not accepted on depth alone (depth
+    slides where its geometry is blind: a wall filling the view, a corridor, a far hall).
+    It breaks it when it departs from the constant-velocity prediction by more than a
+    hand-held camera can accelerate over the interval (``max_acceleration_m_s2 * dt^2``), or
+    by more than ``unusual_departure_factor`` times this recording's usual departure
+    (:func:`usual_departure`). Such a step is aligned again, frame to frame and then to the
+    model, with colour joining depth (where colour is registered), from the prediction, and
+    that estimate is kept when it passes the checks. A step that is only unusual is first
+    scored by the images on the way to the prediction (:func:`_towards_prediction`, a few
+    milliseconds where aligning again costs a hundred): it stands where depth's end is the
+    cheapest, and colour's estimate is kept only when it departs less than depth's. Every
+    frame's departure, of the estimate kept, joins the pattern (:attr:`Attempt.acceleration`),
+    a frame aligned with colour already (its depth blind) too, unchecked."""
     if not (att.ok and cfg.motion_check_photometric_weight > 0):
         return
     if not state.velocity_known:  # no motion pattern to break yet
         return
     assert att.T_world_cam is not None
     predicted = att.T_world_prev @ att.velocity
-    bound = cfg.max_acceleration_m_s2 * att.dt_s**2
     departure = translation_norm(inv_T(predicted) @ att.T_world_cam)
     att.acceleration = departure / att.dt_s**2
     if att.photometric != 0:  # aligned with colour already (depth was blind): kept as it is
         return
-    disagreement = att.depth_disagreement() if cfg.depth_disagreement_check else 0.0
-    usual = usual_departure(cfg, state.recent_accelerations, att.dt_s)
-    if max(departure, disagreement) <= bound and departure <= usual:
+    bound = cfg.max_acceleration_m_s2 * att.dt_s**2
+    what = _breaks_pattern(cfg, state, att, departure, bound)
+    if what is None:
         return
-    if departure > bound:
-        what = f"its step departs {100 * departure:.1f} cm from the constant-velocity prediction"
-    elif departure > usual:
-        what = (
-            f"its step departs {100 * departure:.1f} cm from the constant-velocity "
-            f"prediction, {departure / usual * cfg.unusual_departure_factor:.1f} times "
-            "the recent frames' median"
-        )
-    else:
-        what = f"depth's two estimates of it are {100 * disagreement:.1f} cm apart"
     if att.frame.photometric_image(len(cfg.iterations)) is None:
         _warn_unconfirmed(att, what, bound, "there is no registered colour to check it")
         return
     # a step only unusual for this recording: kept on depth where the images agree with it
-    # better than with any point on the way to the prediction, or where colour's estimate
-    # does not return towards the motion pattern
-    unusual_only = max(departure, disagreement) <= bound
+    # better than with any point on the way to the prediction
+    unusual_only = departure <= bound
     if unusual_only and colour_prefers(cfg, att, _towards_prediction(att)) == 0:
         return
+    _align_with_colour(cfg, att, model, (predicted, departure, bound), what, unusual_only)
+
+
+def _breaks_pattern(
+    cfg: TrackingConfig, state: TrackerState, att: Attempt, departure: float, bound: float
+) -> str | None:
+    """How the step breaks the motion pattern, in words for the log; None when it does not."""
+    cm = 100 * departure
+    if departure > bound:
+        return f"its step departs {cm:.1f} cm from the constant-velocity prediction"
+    usual = usual_departure(cfg, state.recent_accelerations, att.dt_s)
+    if departure > usual:
+        times = departure / usual * cfg.unusual_departure_factor
+        return (
+            f"its step departs {cm:.1f} cm from the constant-velocity prediction, "
+            f"{times:.1f} times the recent frames' median"
+        )
+    return None
+
+
+def _align_with_colour(
+    cfg: TrackingConfig,
+    att: Attempt,
+    model: TrackingModel,
+    prediction: tuple[np.ndarray, float, float],
+    what: str,
+    unusual_only: bool,
+) -> None:
+    """:func:`check_motion`'s second alignment, with colour, from the prediction
+    (``prediction``: the predicted pose, depth's departure from it and the bound)."""
+    predicted, departure, bound = prediction
     att.photometric = cfg.motion_check_photometric_weight
     att.tried = []
     estimate = align_from(cfg, att, model, att.velocity, False)
@@ -142,7 +145,7 @@ def colour_first_step(
     and kept when it passes the checks. (Colour 15 ms off the depth on a wall panned at
     90 deg/s moved the first step 32 mm, 10 mm now; RANSAC against the restart keyframe's
     raw features disagreed with depth, and a fast hall lost four frames: see
-    docs/benchmarks.md, session 20. A second and third pass move the step less each
+    docs/archive/journal.md. A second and third pass move the step less each
     time: the colour images of one step may be a few milliseconds apart.)"""
     p, prev = att.frame, att.prev_frame
     if not (att.first_step and att.ok and prev is not None):

@@ -14,7 +14,7 @@ level would average across depth edges).
 How much colour weighs: :class:`ColourAgreement`. Colour is registered to depth on every
 synthetic sequence and nearly so on a real Kinect, but only nearly: on ``tum-fr1-xyz`` a frame's
 colour puts it 1-3 mm from where depth puts it even along the directions depth constrains best,
-against 0.02-0.5 mm on the synthetic rows (docs/benchmarks.md, session 27). And both terms'
+against 0.02-0.5 mm on the synthetic rows (docs/archive/journal.md). And both terms'
 information matrices (their robust scales assume independent pixels) claim far more precision
 than either has. So colour's weight is measured, per recording, where depth is surest (its
 information's strongest directions): each frame gives two disagreements with the frame-to-model

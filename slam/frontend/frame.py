@@ -22,7 +22,7 @@ from slam.frontend.icp import IcpResult, projective_icp
 from slam.frontend.photometric import joint_align
 from slam.frontend.pointcloud import bilateral_depth, depth_pyramid, downsample_depth
 from slam.frontend.rgbd_image import RgbdImage, grey
-from slam.frontend.weighted_icp import SourcePoints, depth_constraint
+from slam.frontend.weighted_icp import depth_constraint
 from slam.keyframe import FeatureSet, KeyframeView
 
 
@@ -44,8 +44,7 @@ def icp_depth_range(
     least ``near_fraction`` of the valid pixels, else ``depth_max_m`` (a scene mostly far away
     keeps all its depth). A structured-light sensor's depth noise grows as z^2 and is
     structured far away: on tum-fr1-xyz, ICP on depth up to 2.5 m instead of 4 m has odometry
-    ATE 0.0111 m instead of 0.0143 m. (With ``tracking.icp_noise_weighting`` all depth is used,
-    weighted by its noise.)"""
+    ATE 0.0111 m instead of 0.0143 m."""
     if near_max_m >= depth_max_m:
         return depth_max_m
     valid = np.count_nonzero(depth_m > 0)
@@ -110,9 +109,8 @@ class PreparedFrame:
 
     ``depth_m``: tracking depth (downsampled, bilateral-filtered); ``pyramid``: its ICP pyramid
     (finest first); ``K_track``: intrinsics of ``depth_m``; ``icp_depth_max_m``: the depth range
-    ICP uses; ``points``: with ``icp_noise_weighting``, each pyramid level's valid pixels as
-    points with their normals and depth noise (the weighted ICP's source), else None; ``rgbd``: depth + grey pyramids for the photometric term (None when it is off or
-    the frame has no colour); ``orb``: the extractor, None when colour is not used for features;
+    ICP uses; ``rgbd``: depth + grey pyramids for the joint alignment (built on first use by
+    :meth:`photometric_image`; None until then or without registered colour); ``orb``: the extractor, None when colour is not used for features;
     ``prep_ms``: time spent building it."""
 
     frame: Frame
@@ -120,7 +118,6 @@ class PreparedFrame:
     pyramid: list[np.ndarray]
     K_track: np.ndarray
     icp_depth_max_m: float
-    points: list[SourcePoints] | None
     rgbd: RgbdImage | None = None
     orb: OrbExtractor | None = field(default=None, repr=False)
     prep_ms: float = 0.0
@@ -138,42 +135,25 @@ class PreparedFrame:
         frame: Frame,
         cfg: TrackingConfig,
         orb: OrbExtractor | None,
-        photometric: bool,
         depth_m: np.ndarray | None = None,
         colour_registered: bool = False,
     ) -> PreparedFrame:
         """Derive the frame's tracking inputs (``depth_m``: its tracking depth when already
-        computed). ``photometric``: build the grey pyramids of the joint alignment now;
-        ``colour_registered``: they can be built on demand (:meth:`photometric_image`)."""
+        computed). ``colour_registered``: the grey pyramids of the joint alignment can be built
+        on demand (:meth:`photometric_image`)."""
         t0 = time.perf_counter()
         depth = tracking_depth(frame.depth_m, cfg) if depth_m is None else depth_m
         levels = len(cfg.iterations)
         pyramid = depth_pyramid(depth, levels)  # built once: every ICP of this frame uses it
         K_track = scale_intrinsics(frame.K, cfg.downsample)
-        points = None
-        if cfg.icp_noise_weighting:
-            icp_max = cfg.depth_max_m
-            noise = depth_noise(cfg)
-            points = [
-                SourcePoints.from_depth(
-                    np.where(d < icp_max, d, np.float32(0.0)),
-                    scale_intrinsics(K_track, 2**level),
-                    noise,
-                )
-                for level, d in enumerate(pyramid)
-            ]
-        else:
-            icp_max = icp_depth_range(
-                depth, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
-            )
+        icp_max = icp_depth_range(
+            depth, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
+        )
         icp_max, ratio = _blind_check(pyramid, K_track, icp_max, cfg)
-        rgbd = None
-        if photometric and frame.color is not None:
-            rgbd = RgbdImage(pyramid, grey(frame.color, cfg.downsample), K_track, levels)
         prep_ms = (time.perf_counter() - t0) * 1e3
         registered = colour_registered and frame.color is not None
         return PreparedFrame(
-            frame, depth, pyramid, K_track, icp_max, points, rgbd, orb, prep_ms, registered, ratio
+            frame, depth, pyramid, K_track, icp_max, None, orb, prep_ms, registered, ratio
         )
 
     @property
@@ -252,8 +232,6 @@ class PreparedFrame:
             cfg.max_correspondence_m,
             cfg.huber_delta_m,
             cfg.coarse_correspondence_factor,
-            depth_noise(cfg) if self.points is not None else None,
-            self.points,
         )
 
     def joint_to(
@@ -261,12 +239,12 @@ class PreparedFrame:
         target: RgbdImage,
         T_init: np.ndarray,
         cfg: TrackingConfig,
-        weight: float | None = None,
+        weight: float,
         target_colour: np.ndarray | None = None,
         iterations: list[int] | None = None,
     ) -> IcpResult:
         """Joint photometric + geometric alignment of this frame to ``target`` (needs
-        ``rgbd``); ``weight``: of the photometric term (default ``cfg.photometric_weight``).
+        ``rgbd``); ``weight``: of the photometric term.
         Along directions depth constrains ``degenerate_ratio`` times worse than its best,
         colour decides alone. ``target_colour``: the target's ``T_depth_colour`` (None: its
         colour was seen from its depth camera, as a model view's is); ``iterations`` per level
@@ -280,7 +258,7 @@ class PreparedFrame:
             cfg.max_correspondence_m,
             cfg.huber_delta_m,
             cfg.coarse_correspondence_factor,
-            cfg.photometric_weight if weight is None else weight,
+            weight,
             fitness_depth_max_m=self.icp_depth_max_m,
             degenerate_ratio=cfg.degenerate_ratio,
             colour_poses=(self.T_depth_colour, target_colour),

@@ -11,8 +11,7 @@ import open3d as o3d
 import open3d.core as o3c
 
 from slam.camera import DepthNoise, scale_intrinsics
-from slam.frontend.pointcloud import depth_pyramid, normal_map
-from slam.frontend.weighted_icp import SourcePoints, vertex_map, weighted_point_to_plane
+from slam.frontend.pointcloud import depth_pyramid
 
 _odom = o3d.t.pipelines.odometry
 log = logging.getLogger(__name__)
@@ -27,10 +26,6 @@ class IcpResult:
     # valid correspondence (finest level)
     fitness: float
     inlier_rmse: float  # point-to-plane RMSE of the correspondences, metres
-    # the pose's information (6x6, rotation then translation) under the depth noise model and
-    # the median depth of the correspondences; None where the finest level was Open3D's
-    information: np.ndarray | None = None
-    depth_m: float = 0.0
 
 
 Depth = np.ndarray | list[np.ndarray]  # a depth image, or its pyramid (finest first)
@@ -46,8 +41,6 @@ def projective_icp(
     max_correspondence_m: float = 0.07,
     huber_delta_m: float = 0.05,
     coarse_factor: float = 1.0,
-    noise: DepthNoise | None = None,
-    source_points: list[SourcePoints] | None = None,
 ) -> IcpResult:
     """Align a source depth image to a target depth image (e.g. the model ray-cast).
 
@@ -57,17 +50,8 @@ def projective_icp(
     finest, so coarse levels can pull in larger motions. Either depth may be given as its
     :func:`depth_pyramid` (at least ``len(iterations)`` levels), so a caller aligning one image
     several times builds it once.
-
-    With a depth ``noise`` model every level is :func:`weighted_point_to_plane` (residuals
-    weighted by the depth noise; the result carries the pose's information) instead of Open3D's
-    kernel; ``source_points``: the source levels as points (built when not given).
     """
     levels = len(iterations)
-    if noise is not None:
-        return _weighted_icp(
-            source_depth_m, target_depth_m, K, init_T_target_source, iterations, depth_max_m,
-            max_correspondence_m, huber_delta_m, coarse_factor, noise, source_points,
-        )  # fmt: skip
     if coarse_factor != 1.0 and levels > 1:
         return _coarse_to_fine(
             source_depth_m, target_depth_m, K, init_T_target_source, iterations, depth_max_m,
@@ -153,52 +137,7 @@ def _open3d_icp(
     # (valid and within depth_max_m): a far scene keeps most of its pixels beyond the range
     usable = np.count_nonzero((source_depth_m > 0) & (source_depth_m < depth_max_m))
     fitness = min(1.0, result.fitness * source_depth_m.size / usable) if usable else 0.0
-    return IcpResult(
-        result.transformation.numpy().astype(float), fitness, result.inlier_rmse
-    )
-
-
-def _weighted_icp(
-    source_depth_m: Depth,
-    target_depth_m: Depth,
-    K: np.ndarray,
-    T_init: np.ndarray,
-    iterations: list[int],
-    depth_max_m: float,
-    max_correspondence_m: float,
-    huber_delta_m: float,
-    coarse_factor: float,
-    noise: DepthNoise,
-    source_points: list[SourcePoints] | None,
-) -> IcpResult:
-    """Every level noise-weighted (:func:`weighted_point_to_plane`), coarse to fine; the
-    correspondence gate grows by ``coarse_factor`` per coarser level."""
-    levels = len(iterations)
-    src_pyr = _pyramid(source_depth_m, levels)
-    tgt_pyr = _pyramid(target_depth_m, levels)
-    T = np.asarray(T_init, float)
-    res = None
-    for level in reversed(range(levels)):
-        n_iter = int(iterations[levels - 1 - level])
-        if n_iter <= 0:
-            continue
-        K_l = scale_intrinsics(K, 2**level)
-        if source_points is not None and level < len(source_points):
-            src = source_points[level]
-        else:
-            d = src_pyr[level]
-            src = SourcePoints.from_depth(np.where(d < depth_max_m, d, 0.0), K_l, noise)
-        vertex = vertex_map(np.asarray(tgt_pyr[level], np.float32), K_l)
-        res = weighted_point_to_plane(
-            src, vertex, normal_map(vertex, f_px=float(K_l[0, 0])), K_l, T, n_iter,
-            max_correspondence_m * coarse_factor**level,
-        )  # fmt: skip
-        if res is None:
-            return IcpResult(np.asarray(T_init, float).copy(), 0.0, float("inf"))
-        T = res.T_target_source
-    if res is None:
-        return IcpResult(np.asarray(T_init, float).copy(), 0.0, float("inf"))
-    return IcpResult(res.T_target_source, res.fitness, res.rmse_m, res.H, res.depth_m)
+    return IcpResult(result.transformation.numpy().astype(float), fitness, result.inlier_rmse)
 
 
 def _pyramid(depth: Depth, levels: int) -> list[np.ndarray]:
@@ -302,6 +241,8 @@ def _point_to_plane(
     right, left, down, up = vertex(u + 1, v), vertex(u - 1, v), vertex(u, v + 1), vertex(u, v - 1)
     n = np.cross(right - left, down - up)
     norm = np.linalg.norm(n, axis=1)
-    known = (norm > 1e-12) & (right[:, 2] > 0) & (left[:, 2] > 0) & (down[:, 2] > 0) & (up[:, 2] > 0)
+    known = (
+        (norm > 1e-12) & (right[:, 2] > 0) & (left[:, 2] > 0) & (down[:, 2] > 0) & (up[:, 2] > 0)
+    )
     q = vertex(u[known], v[known])
     return np.einsum("ij,ij->i", p[known] - q, n[known] / norm[known, None])

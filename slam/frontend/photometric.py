@@ -133,8 +133,7 @@ def mean_warped_intensity(
 
 #: rows per block of a tall matrix product. OpenBLAS multiplies blocks this small on one thread;
 #: on tens of thousands of rows it uses its threads, which then spin for a while after the
-#: product and slow the next Open3D kernel by about half on two cores (docs/benchmarks.md,
-#: session 28)
+#: product and slow the next Open3D kernel by about half on two cores (docs/archive/journal.md)
 _BLOCK_ROWS = 4096
 
 

@@ -18,8 +18,7 @@ rescued by ORB + RANSAC against the last keyframes.
    hand-held camera can accelerate is aligned again with colour joining depth (also one
    departing several times more than this recording's recent frames did,
    ``tracking.unusual_departure_factor``, kept only where colour returns it towards the
-   prediction; opt-in, ``tracking.depth_disagreement_check``: one whose frame-to-frame and
-   model ICP end far apart); depth slides along a wall filling the view, texture does not;
+   prediction); depth slides along a wall filling the view, texture does not;
    :meth:`~Tracker.colour_first_step`: the
    first step, aligned with colour taken off the depth's instant, again once the step gives
    where the colour cameras were; :meth:`~Tracker.colour_step` (opt-in,
@@ -87,7 +86,6 @@ class Tracker:
             raise ConfigError(f"tracking.downsample must be 1, 2 or 4, got {cfg.downsample}")
         self.cfg = cfg
         self.has_color = has_color
-        self.photometric = has_color and color_registered and cfg.photometric_weight > 0
         self.color_registered = has_color and color_registered
         self.orb = OrbExtractor(cfg.ransac.n_features, cfg.depth_min_m, cfg.depth_max_m)
         self.state = TrackerState()
@@ -109,9 +107,7 @@ class Tracker:
         if isinstance(frame, PreparedFrame):
             return frame
         orb = self.orb if self.has_color else None
-        return PreparedFrame.build(
-            frame, self.cfg, orb, self.photometric, colour_registered=self.color_registered
-        )
+        return PreparedFrame.build(frame, self.cfg, orb, colour_registered=self.color_registered)
 
     def reset(
         self,

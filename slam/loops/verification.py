@@ -97,7 +97,7 @@ def registration_information(
     its translation block is the identity, so it says every translation is measured even
     where the overlap is one plane (a wall, a desk top) along which ICP can slide; only the
     rotation block has the overlap's shape. A point-to-plane information was measured on the
-    scene matrix (docs/benchmarks.md, session 10) and is not used yet."""
+    scene matrix (docs/archive/journal.md) and is not used yet."""
     info = o3d.t.pipelines.odometry.compute_odometry_information_matrix(
         o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(source_depth_m, np.float32))),
         o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(target_depth_m, np.float32))),

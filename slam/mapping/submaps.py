@@ -10,7 +10,7 @@ resolution) and those renderings are integrated into a fresh volume at
 ``T_world_anchor (corrected) @ T_anchor_view``. Chosen over re-integrating the raw frames
 because it needs neither the frames in memory nor the input again (a live sensor cannot be
 re-read), its cost is set by the number of views rather than frames (measured in
-docs/benchmarks.md), and the renderings carry the submap's already-averaged surface.
+docs/archive/journal.md), and the renderings carry the submap's already-averaged surface.
 """
 
 from __future__ import annotations

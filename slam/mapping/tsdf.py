@@ -2,10 +2,7 @@
 
 The grid stores a truncated signed distance, a weight and (optionally) a colour per voxel and is
 updated by the weighted running average of KinectFusion: ``D <- (W D + d) / (W + 1)``,
-``W <- W + 1``. With ``mapping.fusion_noise_weighting`` an observation counts by its depth's
-noise instead, ``D <- (I D + w d) / (I + w)``, ``I <- I + w`` (``I`` in its own attribute,
-``info``), while ``weight`` keeps counting observations for the thresholds of ray-casting and
-meshing.
+``W <- W + 1``.
 """
 
 from __future__ import annotations
@@ -19,7 +16,7 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from slam.camera import DepthNoise, backproject
+from slam.camera import backproject
 from slam.config import MappingConfig
 from slam.geometry import inv_T
 from slam.mapping.range_map import RangeMapBuffer, fragments_bound
@@ -124,45 +121,6 @@ def _newton_depth(
     return np.where(newton, depth + step, np.float32(0.0)).astype(np.float32)
 
 
-class _NoiseWeights:
-    """One noise-weighted integration through Open3D's kernel, which adds every observation
-    with weight 1: ``D <- (W D + d) / (W + 1)``. Setting ``W = I / w`` beforehand (``I``: the
-    voxel's information so far, ``w``: this frame's weight of the voxel's depth) makes that
-    ``(I D + w d) / (I + w)``, the noise-weighted average, for the distance and the colour alike.
-    Afterwards the voxels the kernel updated (``W`` grew by 1) gain ``w`` information and one
-    observation. ``w`` is taken at each block's centre (8 cm: within 15% of a voxel's at 2 m).
-    All on whole blocks of the numpy views of Open3D's buffers: no loop over voxels.
-
-    Blocks the frame touches for the first time are allocated by the integration itself
-    (which may grow the hash map and move every block's buffer), so the blocks are looked up
-    again afterwards; before it, they have nothing to scale."""
-
-    def __init__(self, vbg: o3d.t.geometry.VoxelBlockGrid, blocks: o3c.Tensor, w: np.ndarray):
-        self.vbg, self.blocks, self.w = vbg, blocks, w[:, None]
-        found, mask = vbg.hashmap().find(blocks)
-        self.old = np.flatnonzero(mask.numpy())
-        idx = found.numpy()[self.old].astype(np.int64)
-        weight, info = self._views()
-        n = weight.shape[1]
-        self.count = np.zeros((len(w), n), np.float32)
-        self.info = np.zeros((len(w), n), np.float32)
-        self.count[self.old] = weight[idx]
-        self.info[self.old] = info[idx]
-        self.scaled = self.info / self.w
-        weight[idx] = self.scaled[self.old]
-
-    def _views(self) -> tuple[np.ndarray, np.ndarray]:
-        n = int(np.prod(self.vbg.attribute("weight").shape[1:]))
-        return tuple(self.vbg.attribute(a).numpy().reshape(-1, n) for a in ("weight", "info"))
-
-    def count_observations(self) -> None:
-        idx = self.vbg.hashmap().find(self.blocks)[0].numpy().astype(np.int64)
-        weight, info = self._views()
-        updated = weight[idx] > self.scaled + np.float32(0.5)
-        weight[idx] = self.count + updated
-        info[idx] = self.info + self.w * updated
-
-
 class TSDFVolume:
     """A TSDF volume in world coordinates (metres)."""
 
@@ -171,7 +129,6 @@ class TSDFVolume:
     ) -> None:
         self.cfg = cfg
         self.has_color = has_color and cfg.integrate_color
-        self.noise = DepthNoise() if cfg.fusion_noise_weighting else None
         names = self._attribute_names()
         dtypes = [o3c.float32] * len(names)
         channels = [[3] if n == "color" else [1] for n in names]
@@ -221,18 +178,13 @@ class TSDFVolume:
         if blocks is None:
             log.debug("frame fuses nothing: its depth misses the pixels Open3D samples")
             return
-        weighted = None if self.noise is None else self._weigh_observations(blocks, T_world_cam)
-        try:
-            if self.has_color and color is not None:
-                col = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.uint8)))
-                self.vbg.integrate(
-                    blocks, depth, col, K_t, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
-                )
-            else:
-                self.vbg.integrate(blocks, depth, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc)
-        finally:  # counts and information back in place even when the integration failed
-            if weighted is not None:
-                weighted.count_observations()
+        if self.has_color and color is not None:
+            col = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.uint8)))
+            self.vbg.integrate(
+                blocks, depth, col, K_t, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc
+            )
+        else:
+            self.vbg.integrate(blocks, depth, K_t, extrinsic, _DEPTH_SCALE, depth_max, trunc)
         self._last_blocks = blocks
         self.n_integrated += 1
 
@@ -256,18 +208,6 @@ class TSDFVolume:
             if "No block is touched" not in str(exc):
                 raise
             return None
-
-    def _weigh_observations(self, blocks: o3c.Tensor, T_world_cam: np.ndarray) -> _NoiseWeights:
-        """Make Open3D's next integration of ``blocks`` a noise-weighted one (see
-        :class:`_NoiseWeights`); call ``count_observations()`` on the result after it. The
-        noise model is :class:`~slam.camera.DepthNoise`'s default (Kinect v1): mapping has no
-        sensor section of its own, and only the model's shape matters (weights are relative)."""
-        assert self.noise is not None
-        block_m = self.cfg.voxel_size_m * self.cfg.block_resolution
-        centres = (blocks.numpy().astype(np.float64) + 0.5) * block_m
-        z = (centres - T_world_cam[:3, 3]) @ T_world_cam[:3, 2]  # depth in the camera
-        w = self.noise.weight(np.maximum(z, self.noise.z0_m)).astype(np.float32)
-        return _NoiseWeights(self.vbg, blocks, w)
 
     def _weight_threshold(self, threshold: float) -> float:
         # early on every voxel has few observations; do not demand more than there can be
@@ -418,9 +358,7 @@ class TSDFVolume:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The allocated blocks as numpy arrays (copies): ``keys`` (N, 3) int32 block
-        coordinates, per attribute (``tsdf``, ``weight``, ``color`` when fused, ``info`` with
-        ``mapping.fusion_noise_weighting``) an
-        (N, r, r, r, channels) float32 array, r = block resolution, and ``n_integrated``
+        coordinates, per attribute (``tsdf``, ``weight``, ``color`` when fused) an (N, r, r, r, channels) float32 array, r = block resolution, and ``n_integrated``
         (0-d). ``np.savez`` of this dict is the file format of :meth:`save`."""
         hashmap = self.vbg.hashmap()
         idx = hashmap.active_buf_indices().numpy().astype(np.int64)
@@ -444,19 +382,13 @@ class TSDFVolume:
         keys = np.ascontiguousarray(arrays["keys"], np.int32)
         vol = cls(cfg, has_color, block_count=max(int(1.5 * len(keys)), 1000))
         if len(keys):
-            if vol.noise is not None and "info" not in arrays:
-                # fused without noise weighting: each observation's information counts as 1,
-                # the weight of a depth at DepthNoise.z0_m (0.4 m), so later observations
-                # weigh less against it than they would against a volume fused with weights
-                arrays = {**arrays, "info": arrays["weight"]}
             values = [o3c.Tensor(np.ascontiguousarray(arrays[n])) for n in vol._attribute_names()]
             vol.vbg.hashmap().insert(o3c.Tensor(keys), values)
         vol.n_integrated = int(arrays.get("n_integrated", 1))
         return vol
 
     def _attribute_names(self) -> list[str]:
-        names = ["tsdf", "weight"] + (["color"] if self.has_color else [])
-        return names + (["info"] if self.noise is not None else [])
+        return ["tsdf", "weight"] + (["color"] if self.has_color else [])
 
     def save(self, path: str | Path) -> None:
         """Save the blocks (uncompressed ``.npz`` of :meth:`to_arrays`) for checkpointing."""

@@ -133,10 +133,8 @@ def test_colour_term_only_where_colour_is_registered(tmp_path):
     from slam.frontend.tracker import Tracker
     from tests.data.test_tum import _write_seq
 
-    cfg = TrackingConfig(photometric_weight=1.0)
-    assert Tracker(cfg, color_registered=True).photometric
-    assert not Tracker(cfg, color_registered=False).photometric
-    assert not Tracker(TrackingConfig(), color_registered=True).photometric  # off by default
+    assert Tracker(TrackingConfig(), color_registered=True).color_registered
+    assert not Tracker(TrackingConfig(), color_registered=False).color_registered
     root = _write_seq(tmp_path / "s", [0.0], [0.0])
     assert open_sequence(root).color_registered
     (root / "pose").mkdir()

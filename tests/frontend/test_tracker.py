@@ -14,13 +14,7 @@ from slam.data.base import Frame
 from slam.errors import TrackingError
 from slam.frontend import colour_stages
 from slam.frontend import frame as frame_module
-from slam.frontend.alignment import (
-    Attempt,
-    align_from,
-    align_to_model,
-    covisible_colour,
-    covisible_ratio,
-)
+from slam.frontend.alignment import Attempt, align_from, align_to_model
 from slam.frontend.features import OrbExtractor
 from slam.frontend.frame import PreparedFrame
 from slam.frontend.icp import IcpResult
@@ -30,7 +24,6 @@ from slam.frontend.tracker_state import TrackerState
 from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import Keyframe
 from slam.mapping.submaps import SubmapMap
-from slam.records import TrackingStatus
 from slam.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
 
 # ------------------------------------------------------------------------------------------------
@@ -343,37 +336,6 @@ def test_track_renders_the_model_down_to_min_weight(world):
     assert dt < 0.002 and dr < 0.1
 
 
-def _wall_and_object() -> PreparedFrame:
-    """A textured wall 2 m away filling a 640x480 view, a bumpy object about 0.5 m nearer on
-    its left half (its surface faces every way)."""
-    K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
-    depth = np.full((480, 640), 2.0, np.float32)
-    v, u = np.mgrid[40:440, 40:300]
-    depth[40:440, 40:300] = 1.5 + 0.1 * np.sin(u / 15.0) + 0.1 * np.cos(v / 15.0)
-    colour = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
-    tracker = Tracker(TrackingConfig(), color_registered=True)
-    return tracker.prepare(Frame(0, 0.0, colour, depth, K))
-
-
-def test_the_part_of_a_frame_the_model_holds_decides_whether_colour_joins():
-    cfg = TrackingConfig(covisible_colour=True)
-    p = _wall_and_object()
-    att = Attempt(p, TrackingStatus(0, "icp", False), np.eye(4), np.eye(4), False, False)
-    assert p.constraint_ratio < cfg.photometric_ratio  # the object holds the frame
-    everything = p.depth_m.copy()
-    assert covisible_ratio(cfg, p, everything) == p.constraint_ratio
-    assert covisible_colour(cfg, att, everything) is None
-    # the model holds the wall only (the object was panned into view): blind along it
-    wall_only = everything.copy()
-    wall_only[:, : wall_only.shape[1] // 2] = 0.0
-    assert covisible_ratio(cfg, p, wall_only) > cfg.degenerate_ratio
-    assert covisible_colour(cfg, att, wall_only) == cfg.motion_check_photometric_weight
-    att.colour_reach = False  # a fast motion: beyond the photometric term's reach
-    assert covisible_colour(cfg, att, wall_only) is None
-    att.colour_reach = True
-    assert covisible_colour(TrackingConfig(), att, wall_only) is None  # off by default
-
-
 def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(world, model, caplog):
     tracker = _tracker_at(world, 9)
     p = tracker.prepare(world.frame(10))
@@ -407,37 +369,6 @@ def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(worl
     assert not att.status.photometric and att.T_world_cam is slid
     assert "frame 10: its step departs 2.0 cm from the constant-velocity prediction" in caplog.text
     assert "there is no registered colour to check it" in caplog.text
-
-
-def test_depth_estimates_that_disagree_beyond_the_bound_are_aligned_again_with_colour(world, model):
-    # the estimate is where the prediction is (no departure), but frame-to-frame ICP, the
-    # model ICP's start, ended 2 cm from it along x: one of depth's two estimates slid, more
-    # than a hand-held camera can accelerate in 1/30 s (1.1 cm), so colour decides
-    tracker = _tracker_at(world, 9, depth_disagreement_check=True)
-    p = tracker.prepare(world.frame(10))
-
-    def attempt(f2f_m: float, large: bool = False, path: str = "icp"):
-        att = tracker.predict(p)
-        att.large, att.status.path = large, path
-        att.keep(world.poses[9].copy(), IcpResult(np.eye(4), 0.9, 0.001), 0.9)
-        att.f2f = _motion(f2f_m, 0.0)
-        att.ok = True
-        tracker.check_motion(att, model)
-        return att
-
-    att = attempt(0.02)
-    assert att.status.photometric and att.ok
-    dt, dr = _errors(att.T_world_cam, world.poses[10])
-    assert dt < 0.003 and dr < 0.2
-    # within the bound, under a large motion (each hypothesis has its own frame-to-frame
-    # estimate) or after a RANSAC rescue (the estimate did not start from it), depth stands
-    for att in (attempt(0.005), attempt(0.02, large=True), attempt(0.02, path="ransac+icp")):
-        assert not att.status.photometric
-        np.testing.assert_array_equal(att.T_world_cam, world.poses[9])
-    tracker.cfg = TrackingConfig()  # off by default
-    att = attempt(0.02)
-    assert not att.status.photometric
-    np.testing.assert_array_equal(att.T_world_cam, world.poses[9])
 
 
 def _checked(tracker: Tracker, p: PreparedFrame, model, T_world_cam: np.ndarray) -> Attempt:
@@ -537,7 +468,7 @@ def test_the_near_cut_is_dropped_where_near_depth_alone_is_blind():
     color, depth = render_frame(build_scene(cfg_s), T, cfg_s)
     cfg = TrackingConfig()
     p = frame_module.PreparedFrame.build(
-        Frame(24, 0.8, color, depth, cfg_s.calibration().K), cfg, None, False
+        Frame(24, 0.8, color, depth, cfg_s.calibration().K), cfg, None
     )
     rule = icp_depth_range(p.depth_m, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction)
     assert rule == cfg.icp_depth_max_m
@@ -776,11 +707,12 @@ def test_the_first_step_with_colour_off_the_depths_instant_is_aligned_again(worl
     the restart frame's; once the step is estimated both follow from it, the references see
     the restart frame's colour from there, and the frame is aligned again (in the same place
     here: the frames' colour was in fact taken with their depth)."""
-    tracker = Tracker(TrackingConfig(photometric_weight=1.0))
+    tracker = Tracker(TrackingConfig())
     tracker.reset(dataclasses.replace(world.frame(9), color_dt_s=-0.01), world.poses[9])
     p = tracker.prepare(dataclasses.replace(world.frame(10), color_dt_s=0.012))
     att = tracker.predict(p)
     assert att.first_step and p.T_depth_colour is None
+    att.photometric = 1.0  # colour joins depth on this frame (as where depth is weak)
     tracker.align(att, model, *tracker.seed(att))
     tracker.check_motion(att, model)
     before = att.T_world_cam

@@ -230,37 +230,3 @@ def test_a_refined_raycast_puts_depth_on_the_fused_surface():
     np.testing.assert_array_equal(coloured[True].depth_m, coloured[False].depth_m)
 
 
-def test_noise_weighted_fusion_averages_by_the_depth_noise():
-    """A wall fused from 1 m, then seen 2 cm farther from 3 m away (a far view's error): counted
-    as one observation each, the surface lands half way (1.01 m); weighted by the depth noise
-    (``fusion_noise_weighting``: information 0.41 at 1 m, 0.0071 at 3.02 m) it stays within 0.5 mm
-    of the near view, in either order. The weight attribute still counts observations (the
-    ray-cast's and marching cubes' thresholds), and the information survives save and load."""
-    from slam.camera import DepthNoise
-
-    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
-    T_near, T_far = np.eye(4), np.eye(4)
-    T_far[2, 3] = -2.0
-    views = [(np.full((240, 320), 1.0, np.float32), T_near),
-             (np.full((240, 320), 3.02, np.float32), T_far)]  # fmt: skip
-    w_near, w_far = DepthNoise().weight(np.array([1.0, 3.02]))
-    expected = (w_near * 1.0 + w_far * 1.02) / (w_near + w_far)
-    centre = (slice(100, 140), slice(140, 180))
-    for weighted, want in ((False, 1.01), (True, expected)):
-        for order in (views, views[::-1]):
-            cfg = MappingConfig(fusion_noise_weighting=weighted, raycast_refine=True)
-            vol = TSDFVolume(cfg, has_color=False)
-            for depth, T in order:
-                vol.integrate(depth, None, K, T)
-            rendered = np.median(vol.raycast(K, 320, 240, T_near, False).depth_m[centre])
-            assert abs(rendered - want) < 5e-4, (weighted, rendered, want)
-            assert vol.vbg.attribute("weight").numpy().max() == 2.0
-    arrays = vol.to_arrays()
-    assert 0.41 < arrays["info"].max() < 0.42 + w_far
-    again = TSDFVolume.from_arrays(arrays, cfg, has_color=False)
-    np.testing.assert_array_equal(again.to_arrays()["info"], arrays["info"])
-    counted = TSDFVolume(MappingConfig(), has_color=False)
-    counted.integrate(views[0][0], None, K, T_near)
-    # a volume fused without weighting: each observation's information was 1
-    loaded = TSDFVolume.from_arrays(counted.to_arrays(), cfg, has_color=False)
-    np.testing.assert_array_equal(loaded.to_arrays()["info"], counted.to_arrays()["weight"])
