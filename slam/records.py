@@ -137,7 +137,7 @@ _OPTIONAL = frozenset(
 @dataclass
 class RunMetrics:
     """A run's numbers: the fields are the ``metrics.json`` keys, in the order written (each one
-    is described in the README's "metrics.json keys"). Read like the JSON object it becomes
+    is described in docs/usage.md, "metrics.json keys"). Read like the JSON object it becomes
     (``m["ate_rmse_m"]``, ``m.get(...)``, ``"ate_rmse_m" in m``); keys that do not apply (no
     ground truth, no resume) are absent. :meth:`as_json` is the object written."""
 

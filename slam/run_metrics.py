@@ -61,7 +61,7 @@ def run_metrics(
     mesh_vertices: int,
     map_blocks: int,
 ) -> RunMetrics:
-    """The run's metrics (see the README's "metrics.json keys"); ``closer``: the loop closer
+    """The run's metrics (see docs/usage.md, "metrics.json keys"); ``closer``: the loop closer
     (loop counts, joins, its timings)."""
     statuses = rec.statuses
     n = len(statuses)
