@@ -281,6 +281,21 @@ class BenchResult:
         return [r for r in self.rows if r["status"] != "ok"]
 
 
+def _warn_missing_sequences(suite: Suite) -> None:
+    """Say before any run which sequence folders are missing (their runs will fail as rows)."""
+    missing = [
+        seq.path for seq in suite.sequences
+        if seq.path != DEMO and not Path(_resolve(suite.base_dir, seq.path)).is_dir()
+    ]  # fmt: skip
+    if missing:
+        runs = len(missing) * len(suite.configs)
+        logger.warning(
+            "suite %s: %d sequence folder(s) not found, so %d run(s) will fail: %s (relative "
+            "paths are relative to the suite file's folder, %s)",
+            suite.name, len(missing), runs, ", ".join(missing), suite.base_dir,
+        )  # fmt: skip
+
+
 def run_suite(
     suite: Suite | str | Path,
     out_dir: str | Path,
@@ -305,6 +320,7 @@ def run_suite(
         import_ray()  # fail before any work when Ray is missing
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    _warn_missing_sequences(suite)
     all_jobs = make_jobs(suite, out)
     rows: list[dict[str, Any] | None] = [None] * len(all_jobs)
     done = [0]

@@ -291,11 +291,24 @@ def test_bench_cli_failed_runs_exit_code(tmp_path):
 
 
 def test_example_suite_parses():
+    """The example runs for any user: the built-in demo, three valid configurations."""
     suite = load_suite(Path(__file__).resolve().parents[2] / "scripts" / "bench_suite_example.yaml")
-    assert [s.name for s in suite.sequences] == ["demo", "7scenes-300", "cabinet"]
+    assert [s.name for s in suite.sequences] == ["demo"]
     assert list(suite.configs) == ["default", "voxel_2cm", "no_frame_to_frame"]
-    assert suite.sequences[2].max_frames == 58 and suite.max_frames == 300
+    assert suite.max_frames == 300
     for overrides in suite.configs.values():
         config_from_dict(overrides)  # every example configuration is valid
-    if SEVEN_SCENES.is_dir():  # the relative path points at the shared datasets
-        assert (suite.base_dir / suite.sequences[1].path).resolve() == SEVEN_SCENES.resolve()
+
+
+def test_missing_sequence_folders_are_named_before_any_run(tmp_path, caplog):
+    """Each missing folder still fails as its rows, but the suite says so up front (a user
+    without the CI data found 6 of 9 runs failed only after minutes)."""
+    from slam.tools.bench import _warn_missing_sequences
+    from slam.tools.bench_suite import suite_from_dict
+
+    suite = suite_from_dict(
+        {"sequences": ["demo", "no/such/a", "no/such/b"], "configs": {"x": {}, "y": {}}},
+        tmp_path, name="s",
+    )  # fmt: skip
+    _warn_missing_sequences(suite)
+    assert "2 sequence folder(s) not found, so 4 run(s) will fail: no/such/a, no/such/b" in caplog.text
