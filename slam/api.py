@@ -192,7 +192,7 @@ def _recorded(
 
     try:
         result = run_fn(hook)
-        save_run(result, out)
+        save_run(result, out, overwrite=True)  # the folder was prepared for this run
     except BaseException:
         if recorder is not None:
             recorder.abort()

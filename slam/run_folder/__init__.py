@@ -128,9 +128,10 @@ def prepare_run_dir(out: str | Path, overwrite: bool = False) -> Path:
         if existing and not overwrite:
             names = ", ".join(p.name for p in existing[:5])
             raise RunFolderError(
-                f"{out} already holds a run ({names}); pass --overwrite to replace it (its "
-                f"outputs are deleted first), --resume {out} to continue an interrupted run, "
-                "or choose another --out"
+                f"{out} already holds a run ({names}); pass --overwrite (Python: "
+                "overwrite=True) to replace it (its outputs are deleted first), --resume "
+                f"{out} (Python: slam.resume_run) to continue an interrupted run, or choose "
+                "another --out"
             )
         if overwrite:
             clear_run_dir(out)

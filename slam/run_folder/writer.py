@@ -48,13 +48,18 @@ def write_config(run_dir: str | Path, config: SlamConfig) -> Path:
     return path
 
 
-def save_run(result: RunResult, out_dir: str | Path) -> Path:
+def save_run(result: RunResult, out_dir: str | Path, overwrite: bool = False) -> Path:
     """Write the run folder: trajectory.txt, odometry.txt, mesh.ply, config.yaml, tracking.csv,
     pose_graph.g2o, loops.json, segment_N.txt (map segments never joined to the main one) and,
-    last, metrics.json, which marks the folder as holding a complete run (any old one is removed
-    first), with the version and git commit of the software (``result.metrics`` gets them too).
-    Every file is written atomically."""
+    last, metrics.json, which marks the folder as holding a complete run, with the version and
+    git commit of the software (``result.metrics`` gets them too). A folder that already holds
+    a complete run is refused unless ``overwrite``. Every file is written atomically."""
     out = Path(out_dir)
+    if (out / METRICS_FILE).is_file() and not overwrite:
+        raise RunFolderError(
+            f"{out} already holds a complete run ({METRICS_FILE}); pass overwrite=True to "
+            "replace it, or save into another folder"
+        )
     try:
         _write_all(result, out)
     except OSError as exc:

@@ -157,3 +157,22 @@ def test_resume_without_checkpoint_says_so(tmp_path):
     res = runner.invoke(app, ["run", "--resume", str(run)])
     assert res.exit_code == 2
     assert "no checkpoint to resume from" in flat(res.output)
+
+
+def test_save_run_twice_is_refused_unless_overwrite(tmp_path):
+    """`slam.save_run(result, dir)` into a folder holding a complete run replaced it without a
+    word; now it says so, and overwrite=True replaces it. A Python caller of run_sequence is
+    told the keyword, not only the CLI flag."""
+    from slam.run_folder import METRICS_FILE
+    from tests.tools.test_report import make_run
+
+    run_dir = make_run(tmp_path / "a")
+    assert (run_dir / METRICS_FILE).is_file()
+    with pytest.raises(slam.RunFolderError, match="already holds a complete run.*overwrite=True"):
+        slam.save_run(_FakeResult(), run_dir)
+    with pytest.raises(slam.RunFolderError, match=r"overwrite=True"):
+        slam.run_sequence(run_dir, run_dir)
+
+
+class _FakeResult:
+    """Never written: the refusal comes first."""
