@@ -324,6 +324,7 @@ def _complete_metrics(
     against the sequence's ground truth (when it has one)."""
     m = result.metrics
     m.sequence = str(sequence.path)
+    m.unpaired_images = dict(sequence.unpaired_images)
     m.checkpoints = checkpoints.count
     m.checkpoint_ms = round(checkpoints.ms, 1)
     if resumed_at is not None:

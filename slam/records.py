@@ -180,6 +180,8 @@ class RunMetrics:
     resumed_at_frame: int | None = None
     peak_rss_mb: float | None = None
     read_ms_per_frame: float | None = None  # the reader thread's time per frame read
+    # images of the recording left out because they have no partner (TUM: rgb/depth pairs)
+    unpaired_images: dict[str, int] = field(default_factory=dict)
     # set when the run folder is written (slam.run_folder.save_run): the software that ran
     slam_version: str | None = None
     git_commit: str | None = None  # null when not run from a git checkout

@@ -206,6 +206,12 @@ class Sequence(ABC):
         term)."""
         return self.has_color
 
+    @property
+    def unpaired_images(self) -> dict[str, int]:
+        """Images of the recording left out because they have no partner (by kind: ``rgb``,
+        ``depth``): a depth image without a colour image near it in time is not a frame."""
+        return {}
+
     @abstractmethod
     def __len__(self) -> int: ...
 

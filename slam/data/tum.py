@@ -220,10 +220,20 @@ class TumSequence(Sequence):
             self._color_dt = np.array([rgb_stamps[i] - depth_stamps[j] for i, j in pairs])
             self._rgb: list[str] | None = [rgb_names[i] for i, _ in pairs]
             self._depth = [depth_names[j] for _, j in pairs]
-            dropped = len(rgb_stamps) - len(pairs)
-            if dropped:
-                log.info("%s: %d rgb images without a depth match were dropped", self.path, dropped)
+            self._unpaired = {
+                "rgb": len(rgb_stamps) - len(pairs), "depth": len(depth_stamps) - len(pairs)
+            }  # fmt: skip
+            if self._unpaired["depth"]:
+                log.warning(
+                    "%s: %d of %d depth images have no colour image within %g s: they are not "
+                    "frames of the run (metrics.json: unpaired_images)",
+                    self.path, self._unpaired["depth"], len(depth_stamps), max_dt,
+                )  # fmt: skip
+            if self._unpaired["rgb"]:
+                log.info("%s: %d rgb images without a depth match were dropped", self.path,
+                         self._unpaired["rgb"])  # fmt: skip
         else:
+            self._unpaired = {}
             self._stamps = depth_stamps
             self._color_dt = np.zeros(len(depth_stamps))
             self._rgb = None
@@ -284,6 +294,10 @@ class TumSequence(Sequence):
     @property
     def has_color(self) -> bool:
         return self._rgb is not None
+
+    @property
+    def unpaired_images(self) -> dict[str, int]:
+        return dict(self._unpaired)
 
     @property
     def color_registered(self) -> bool:

@@ -42,6 +42,8 @@ def test_association_with_offset_timestamps(tmp_path):
     assert f.color[0, 0, 0] == 4
     # ... and says when its colour was taken (tracking moves the colour camera by it)
     assert [seq[i].color_dt_s for i in range(4)] == pytest.approx([-0.012] * 3 + [-0.012])
+    # the depth image without a partner is counted (it is not a frame of the run)
+    assert seq.unpaired_images == {"rgb": 1, "depth": 1}
 
 
 def test_associate_is_one_to_one():
