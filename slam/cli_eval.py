@@ -283,7 +283,7 @@ def report_cmd(
     for p in rep.plots:
         typer.echo(f"wrote {p}")
     if rep.evaluation is None:
-        typer.echo(f"no ground truth: {rep.ground_truth_error}")
+        typer.echo(f"no accuracy: {rep.ground_truth_error}")
 
 
 @command("bench", short_help="Run a suite of sequences x configurations; write one table.")

@@ -165,7 +165,10 @@ def _ground_truth(
     correct_scale: bool,
     rpe_deltas: tuple,
 ) -> tuple[Trajectory | None, slam_eval.RunEvaluation | None, str | None]:
-    """(ground truth, evaluation, why there is none); an explicit ``gt_path`` must work."""
+    """(ground truth, evaluation, why there is no evaluation); an explicit ``gt_path`` must
+    work. Ground truth that is found but cannot evaluate the run (a run of one frame) is still
+    drawn."""
+    gt = None
     try:
         gt, _ = slam_eval.load_run_ground_truth(run.path, gt_path)
         ev = slam_eval.evaluate_run(
@@ -175,7 +178,7 @@ def _ground_truth(
         if gt_path is not None:
             raise
         logger.warning("report without accuracy: %s", exc)
-        return None, None, str(exc)
+        return gt, None, str(exc)
     return gt, ev, None
 
 
@@ -212,7 +215,7 @@ def _plots(
         top,
         gt,
         trajs,
-        title=f"{title}: {plane.name}" + ("" if gt is not None else " (no ground truth)"),
+        title=f"{title}: {plane.name}" + ("" if gt is not None else " (not aligned)"),
         loop_edges=edges,
         loop_label="accepted loop",
         tol=max_diff,
@@ -253,6 +256,11 @@ def _accuracy_section(
     max_diff: float,
     correct_scale: bool,
 ) -> list[str]:
+    if ev is None and gt is not None:
+        return [
+            "The ground truth cannot evaluate this run (see above), so no accuracy numbers. "
+            "The trajectory plot is in the SLAM world frame (first camera)."
+        ]
     if ev is None or gt is None:
         return [
             "No ground truth, so no accuracy numbers; give one with `slam report RUN_DIR --gt "
@@ -306,6 +314,8 @@ def _markdown(
     )
     if ev is not None:
         lines.append(f"- ground truth: `{ev.ground_truth}`")
+    elif gt is not None:
+        lines.append(f"- ground truth: found, but no evaluation ({gt_error})")
     else:
         lines.append(f"- ground truth: none ({gt_error})")
     lines += ["", "## Accuracy", ""]
@@ -313,7 +323,7 @@ def _markdown(
     lines += [
         "",
         f"Trajectories in the {plane.name} of the "
-        + ("ground truth" if gt is not None else "SLAM world frame")
+        + ("ground truth" if ev is not None else "SLAM world frame")
         + f" (horizontal: {plane.u_label}, vertical: {plane.v_label}; the plane in which "
         "the trajectory extends most), with the accepted loop edges in red.",
         "",
@@ -349,7 +359,8 @@ def write_report(
     title = run.path.resolve().name
     gt, ev, gt_error = _ground_truth(run, gt_path, max_diff, correct_scale, rpe_deltas)
     try:
-        plots, plane, timing = _plots(run, out, title, gt, max_diff, correct_scale)
+        aligned_to = gt if ev is not None else None  # too few poses: drawn as estimated
+        plots, plane, timing = _plots(run, out, title, aligned_to, max_diff, correct_scale)
         text = _markdown(run, title, gt, ev, gt_error, plane, timing, max_diff, correct_scale)
     except (TypeError, ValueError, KeyError, AttributeError) as exc:  # edited or damaged files
         raise RunFolderError(

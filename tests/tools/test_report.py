@@ -291,3 +291,20 @@ def test_trajectory_plot_names_its_plane(tmp_path):
     run = make_run(tmp_path)
     md = write_report(run).markdown.read_text()
     assert "Trajectories in the x-y plane of the ground truth (horizontal: x, vertical: y;" in md
+
+
+def test_a_run_too_short_to_evaluate_is_not_said_to_have_no_ground_truth(tmp_path):
+    """A 1-frame run of a sequence with ground truth: the report says the ground truth was
+    found but cannot evaluate one pose (it said "no ground truth")."""
+    from slam.trajectory import read_tum
+
+    run = make_run(tmp_path, with_loops=False)
+    for name in ("trajectory.txt", "odometry.txt"):
+        t = read_tum(run / name)
+        write_tum(run / name, Trajectory(t.timestamps[:1], t.poses[:1]))
+    rep = write_report(run)
+    assert rep.evaluation is None and "1 pose" in (rep.ground_truth_error or "")
+    text = rep.markdown.read_text()
+    assert "- ground truth: found, but no evaluation" in text and "No ground truth" not in text
+    res = CliRunner().invoke(app, ["report", str(run)])
+    assert res.exit_code == 0 and "no accuracy: " in res.output and "no ground truth" not in res.output
