@@ -211,6 +211,8 @@ def run(
             f"[green]wrote[/] {escape(f'{rerun} (open it with `rerun {rerun}`)')}"
         )
     typer.echo(summary_line(result.metrics))
+    if result.metrics.get("calibration_source"):
+        typer.echo(f"calibration: {result.metrics['calibration_source']}")
 
 
 def _check_run_options(

@@ -325,6 +325,7 @@ def _complete_metrics(
     m = result.metrics
     m.sequence = str(sequence.path)
     m.unpaired_images = dict(sequence.unpaired_images)
+    m.calibration_source = sequence.calibration_source
     m.checkpoints = checkpoints.count
     m.checkpoint_ms = round(checkpoints.ms, 1)
     if resumed_at is not None:

@@ -119,6 +119,7 @@ _OPTIONAL = frozenset(
     {
         "resumed_at_frame",
         "read_ms_per_frame",
+        "calibration_source",
         "ate_rmse_m",
         "ate_rmse_odometry_m",
         "ate_rmse_pose_graph_m",
@@ -182,6 +183,7 @@ class RunMetrics:
     read_ms_per_frame: float | None = None  # the reader thread's time per frame read
     # images of the recording left out because they have no partner (TUM: rgb/depth pairs)
     unpaired_images: dict[str, int] = field(default_factory=dict)
+    calibration_source: str | None = None  # where the sequence's calibration came from
     # set when the run folder is written (slam.run_folder.save_run): the software that ran
     slam_version: str | None = None
     git_commit: str | None = None  # null when not run from a git checkout

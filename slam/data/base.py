@@ -184,6 +184,8 @@ class Sequence(ABC):
 
     path: Path
     calibration: Calibration
+    #: where the calibration came from, in words (a calibration.yaml, defaults, the config)
+    calibration_source: str = "the loader's defaults"
 
     @property
     def name(self) -> str:

@@ -56,6 +56,9 @@ class SevenScenesSequence(Sequence):
             self._color.append(c)
         calib_yaml = self.path / "calibration.yaml"
         calib = read_calibration_yaml(calib_yaml) if calib_yaml.is_file() else SEVEN_SCENES_DEFAULT
+        self.calibration_source = (
+            "the folder's calibration.yaml" if calib_yaml.is_file() else "the 7-Scenes defaults"
+        )
         self.calibration = apply_overrides(calib, calibration_overrides)
         c = self.calibration
         self._undistort = (

@@ -253,13 +253,16 @@ class TumSequence(Sequence):
     def _find_calibration(self, overrides: dict | None) -> Calibration:
         yaml_path = self.path / "calibration.yaml"
         if yaml_path.is_file():
+            self.calibration_source = "the folder's calibration.yaml"
             return read_calibration_yaml(yaml_path)
         default = tum_default_for(self.path)
         if default is not None:
+            self.calibration_source = "the TUM defaults for the folder's name"
             log.info("%s: no calibration.yaml, using TUM defaults by folder name", self.path)
             return default
         from_config = from_overrides(overrides)
         if from_config is not None:
+            self.calibration_source = "the config's dataset.calibration"
             log.info("%s: no calibration.yaml, using the config's dataset.calibration", self.path)
             return from_config
         missing = missing_overrides(overrides)

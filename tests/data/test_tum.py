@@ -189,3 +189,12 @@ def test_frames_are_undistorted(tmp_path):
     assert und[24, 32] == plain[24, 32]  # the principal point stays
     # k1 > 0: a pixel of the pinhole image lies farther out in the recorded one
     assert und[24, 60] > plain[24, 60] and und[24, 4] < plain[24, 4]
+
+
+def test_the_calibration_says_where_it_came_from(tmp_path):
+    """Shown after every run (metrics.json calibration_source), not only with -v."""
+    seq = open_sequence(_write_seq(tmp_path / "own", [0.0], [0.0]))
+    assert seq.calibration_source == "the folder's calibration.yaml"
+    folder = _write_seq(tmp_path / "rgbd_dataset_freiburg1_x", [0.0], [0.0], calib=False,
+                        size=(640, 480))  # fmt: skip
+    assert open_sequence(folder).calibration_source == "the TUM defaults for the folder's name"
