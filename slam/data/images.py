@@ -3,6 +3,8 @@ frame declaring a size it must not have is refused without allocating its pixels
 
 from __future__ import annotations
 
+import os
+import stat
 import struct
 from pathlib import Path
 
@@ -78,11 +80,38 @@ def _check_declared_size(
         )
 
 
+#: the largest image file read (bytes): an uncompressed 3-channel image of MAX_IMAGE_PIXELS
+#: with room for headers; anything larger is not a frame (a link to /dev/zero read 4.3 GB)
+MAX_IMAGE_BYTES = 3 * MAX_IMAGE_PIXELS + 1_000_000
+
+
 def _read_bytes(path: Path, index: int, what: str) -> bytes:
+    """The file's bytes: a regular file (following links) of at most :data:`MAX_IMAGE_BYTES`;
+    a device, a FIFO (a read that never ends) or a larger file is a FrameReadError."""
     try:
-        return path.read_bytes()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO must not block the open
     except OSError as exc:
         raise FrameReadError(f"frame {index}: cannot read {what} image {path}: {exc}") from exc
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise FrameReadError(
+                f"frame {index}: {what} image {path} is not a regular file (a device, FIFO or "
+                "socket): images must be files"
+            )
+        if st.st_size > MAX_IMAGE_BYTES:
+            raise FrameReadError(
+                f"frame {index}: {what} image {path} is {st.st_size} bytes, more than any frame "
+                f"({MAX_IMAGE_BYTES}): damaged or not an image"
+            )
+        with os.fdopen(fd, "rb", closefd=True) as f:
+            fd = -1
+            return f.read(MAX_IMAGE_BYTES + 1)
+    except OSError as exc:
+        raise FrameReadError(f"frame {index}: cannot read {what} image {path}: {exc}") from exc
+    finally:
+        if fd >= 0:
+            os.close(fd)
 
 
 def read_color(path: Path, index: int) -> np.ndarray:

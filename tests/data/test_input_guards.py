@@ -225,3 +225,24 @@ def test_a_focal_length_no_sensor_has_is_a_calibration_error(f):
     with pytest.raises(CalibrationError, match="field of view"):
         check_intrinsics(K, 640, 480)
     check_intrinsics([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]], 640, 480)
+
+
+@pytest.mark.parametrize("kind", ["dev-zero", "fifo", "huge"])
+def test_a_depth_frame_that_is_not_a_regular_file_is_refused_at_once(tmp_path, kind):
+    """A link to /dev/zero was read to 4.3 GB (MemoryError); a FIFO hung the run, SIGTERM
+    ignored: only regular files of a bounded size are read, and the frame is skipped."""
+    import os
+
+    from slam.data import images
+    from slam.errors import FrameReadError
+
+    path = tmp_path / "d.png"
+    if kind == "dev-zero":
+        path.symlink_to("/dev/zero")
+    elif kind == "fifo":
+        os.mkfifo(path)
+    else:
+        with open(path, "wb") as f:
+            f.truncate(images.MAX_IMAGE_BYTES + 1)  # sparse: no disk used
+    with pytest.raises(FrameReadError, match="not a regular file|more than any frame"):
+        images.read_depth(path, 7, 5000.0)
