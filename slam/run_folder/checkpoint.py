@@ -33,6 +33,7 @@ import logging
 import os
 import re
 import time
+import zipfile
 from collections.abc import Mapping
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -108,6 +109,27 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
         if a.dtype.kind not in _ARRAY_KINDS:
             raise ValueError(f"array {k!r} has dtype {a.dtype}, not bool or numeric")
     return out
+
+
+def _check_volume_file(path: Path) -> None:
+    """A spilled submap's ``.npz`` (:meth:`~slam.mapping.tsdf.TSDFVolume.save`) by its headers
+    alone (the arrays are read when the submap is needed): a zip of ``.npy`` members of bool or
+    numeric dtype, ``keys`` among them. Anything else (a pickle, text) raises ValueError."""
+    with zipfile.ZipFile(path) as zf:
+        names = zf.namelist()
+        if "keys.npy" not in names:
+            raise ValueError("not a saved TSDF volume (no 'keys' array)")
+        for name in names:
+            with zf.open(name) as f:
+                version = np.lib.format.read_magic(f)
+                read = (
+                    np.lib.format.read_array_header_1_0
+                    if version == (1, 0)
+                    else np.lib.format.read_array_header_2_0
+                )
+                _, _, dtype = read(f)
+            if dtype.kind not in _ARRAY_KINDS:
+                raise ValueError(f"array {name!r} has dtype {dtype}, not bool or numeric")
 
 
 def _write_document(path: Path, obj: Any, where: str) -> None:
@@ -331,6 +353,14 @@ def read_checkpoint(run_dir: str | Path) -> tuple[dict[str, Any], int]:
                         f"{current}: submap file {path} is missing (spilled submaps stay in "
                         f"RUN_DIR/submaps/ until the run ends); {_RESTART}"
                     )
+                if not path.resolve().is_relative_to(run_dir.resolve()):
+                    raise CheckpointError(
+                        f"{current}: submap file {path} is a link that leaves the run folder "
+                        f"{run_dir}; {_RESTART}"
+                    )
+                current = path
+                _check_volume_file(path)
+                current = folder / STATE_FILE
                 sm["path"] = str(path)
             submaps.append(sm)
         position = int(header["position"])

@@ -569,3 +569,21 @@ def test_a_position_the_state_does_not_hold_is_refused(run, position):
     _doctor(run, lambda h: h.update(position=position))
     with pytest.raises(slam.RunFolderError, match=f"position says {position} frames.*--overwrite"):
         resume_run(run)
+
+
+def test_a_spilled_submap_that_is_a_pickle_or_a_link_outside_is_refused(run, tmp_path):
+    """`--resume` ended in a numpy traceback from TSDFVolume.load mid-run when a spilled
+    submap was replaced by a pickle, and read an outside folder when submaps/ was a link."""
+    import pickle
+
+    header = json.loads((run / "checkpoint" / "state.json").read_text())
+    spilled = [sm["path"] for sm in header["state"]["model"]["submaps"] if sm["path"]]
+    target = run / spilled[0]
+    target.write_bytes(pickle.dumps({"keys": [1, 2, 3]}))
+    with pytest.raises(CheckpointError, match=rf"{target.name}: damaged checkpoint"):
+        read_checkpoint(run)
+    outside = Path(shutil.copytree(run / "submaps", tmp_path / "outside"))
+    shutil.rmtree(run / "submaps")
+    (run / "submaps").symlink_to(outside, target_is_directory=True)
+    with pytest.raises(CheckpointError, match="a link that leaves the run folder"):
+        read_checkpoint(run)
