@@ -4,6 +4,7 @@ and the resumption of an interrupted run."""
 from __future__ import annotations
 
 import logging
+import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -13,7 +14,7 @@ from slam.config import SlamConfig, load_config
 from slam.data.base import Sequence
 from slam.data.loader import open_sequence
 from slam.errors import ConfigError, DatasetError, RunFolderError
-from slam.pipeline import FrameCallback, ProgressCallback, RunResult, run
+from slam.pipeline import DeferSignals, FrameCallback, ProgressCallback, RunResult, run
 from slam.run_folder import (
     CHECKPOINT_DIR,
     CONFIG_FILE,
@@ -192,12 +193,15 @@ def _recorded(
 
     try:
         result = run_fn(hook)
-        save_run(result, out, overwrite=True)  # the folder was prepared for this run
+        with DeferSignals() as deferred:  # a finished run's results are written whole
+            save_run(result, out, overwrite=True)  # the folder was prepared for this run
+            remove_work_dirs(out)
     except BaseException:
         if recorder is not None:
             recorder.abort()
         raise
-    remove_work_dirs(out)
+    if deferred.received is not None:
+        log.warning("%s: %s holds the complete run", signal.Signals(deferred.received).name, out)
     if recorder is not None:
         recorder.finish(result)
     return result

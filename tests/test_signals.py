@@ -111,3 +111,26 @@ def test_the_command_line_stops_says_how_to_resume_and_resumes(synth_loop_320, t
     )  # fmt: skip
     assert done.returncode == 0, done.stdout + done.stderr
     assert (out / "metrics.json").exists() and not (out / "checkpoint").exists()
+
+
+def test_a_signal_while_a_finished_run_is_written_lets_the_files_finish(
+    synth_loop_320, tmp_path, monkeypatch, caplog
+):
+    """A signal during the final save (before any checkpoint) killed the process half way: the
+    folder kept a lock, a mesh and trajectories, no metrics.json, no checkpoint, and a rerun
+    needed --overwrite. The run is finished then: its files are written whole first."""
+    import slam.api
+    from slam.run_folder import METRICS_FILE
+    from slam.run_folder.layout import LOCK_FILE
+
+    real_save = slam.api.save_run
+
+    def save_with_a_signal(result, out, overwrite=False):
+        os.kill(os.getpid(), signal.SIGINT)  # arrives while the files are being written
+        return real_save(result, out, overwrite=overwrite)
+
+    monkeypatch.setattr(slam.api, "save_run", save_with_a_signal)
+    result, run_dir = slam.api.run_sequence(synth_loop_320, tmp_path / "run", max_frames=10)
+    assert (run_dir / METRICS_FILE).is_file() and not (run_dir / LOCK_FILE).exists()
+    assert "SIGINT: the run is finished; writing its results first" in caplog.text
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
