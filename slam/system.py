@@ -351,6 +351,7 @@ class Slam:
                 f"checkpoint state version {state.get('version')} is not {STATE_VERSION} "
                 "(written by another version of this package); start the run again"
             )
+        _check_same_config(state.get("config"), self.cfg.to_dict())
         keyframes = [Keyframe.from_state(d) for d in state["keyframes"]]
         by_id = {kf.id: kf for kf in keyframes}
         self.tracker.load_state_dict(state["tracker"], by_id)
@@ -366,3 +367,35 @@ class Slam:
         self.stage_ms = dict(state["stage_ms"])
         self.elapsed_s = float(state["elapsed_s"])
         self.graph_adjusted = bool(state["graph_adjusted"])
+
+
+#: the config sections that shape a run's state: a state continues only under the same ones
+#: (``dataset`` and ``output`` may differ: where the frames are read from, what is written)
+STATE_SECTIONS = ("tracking", "mapping", "loop", "backend", "ba")
+
+
+def _flat(d: Any, prefix: str = "") -> dict[str, Any]:
+    if not isinstance(d, dict):
+        return {prefix.rstrip("."): d}
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        out.update(_flat(v, f"{prefix}{k}."))
+    return out
+
+
+def _check_same_config(saved: Any, current: dict[str, Any]) -> None:
+    """A state saved under another configuration (voxel size, downsampling, ...) would continue
+    with frames lost and map segments never joined: refused, naming the differences."""
+    if not isinstance(saved, dict):
+        raise SlamError("the checkpoint state holds no config; start the run again")
+    old = {k: v for s in STATE_SECTIONS for k, v in _flat(saved.get(s, {}), f"{s}.").items()}
+    new = {k: v for s in STATE_SECTIONS for k, v in _flat(current.get(s, {}), f"{s}.").items()}
+    differ = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+    if differ:
+        shown = "; ".join(f"{k}: {old.get(k)!r} in the checkpoint, {new.get(k)!r} now" for k in
+                          differ[:5])  # fmt: skip
+        more = f" (and {len(differ) - 5} more)" if len(differ) > 5 else ""
+        raise SlamError(
+            f"the checkpoint was written under another configuration: {shown}{more}; resume "
+            "with the run's own config.yaml, or start the run again"
+        )

@@ -122,3 +122,18 @@ def test_loop_verification_trusts_features_only_where_colour_is_registered():
     assert slam.Slam().closer.verifier.features_on_depth
     assert not slam.Slam(color_registered=False).closer.verifier.features_on_depth
     assert not slam.Slam(has_color=False).closer.verifier.features_on_depth
+
+
+def test_a_state_of_another_configuration_is_refused_naming_the_difference(frames):
+    """A state loaded into a Slam of another voxel size (or a run's config.yaml edited before
+    --resume) went on without a word, frames lost and a segment never joined."""
+    _, fr = frames
+    system = slam.Slam(config_from_dict(FAST))
+    for f in fr[:3]:
+        system.step(f)
+    state = system.state_dict()
+    other = slam.Slam(config_from_dict({**FAST, "mapping": {"voxel_size_m": 0.02}}))
+    with pytest.raises(slam.SlamError, match=r"mapping.voxel_size_m: 0.01 in the checkpoint, 0.02 now"):
+        other.load_state_dict(state)
+    same = slam.Slam(config_from_dict({**FAST, "dataset": {"max_frames": 5}}))  # where frames come from
+    same.load_state_dict(state)
