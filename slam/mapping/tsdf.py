@@ -243,52 +243,24 @@ class TSDFVolume:
         weight = self._weight_threshold(
             self.cfg.raycast_weight_threshold if min_weight is None else min_weight
         )
-        blocks = self._last_blocks
         # Open3D's ray-caster reads voxel (i, j, k) as if its value sat half a voxel lower than
         # where integration measured it, so surfaces render shifted by -voxel/2 on every world
         # axis (measured: +7 mm depth bias at 1 cm voxels, 0 with this correction; the
         # marching-cubes mesh has no such offset). Rendering from a camera moved by +voxel/2
         # cancels it; uncorrected, frame-to-model tracking drifts along (1, 1, 1).
-        T_world_cam_fused = T_world_cam
-        T_world_cam = T_world_cam.copy()
-        T_world_cam[:3, 3] += 0.5 * self.cfg.voxel_size_m
-        if frustum_depth_m is not None and self.n_integrated > 0:
-            blocks = self._touched_blocks(
-                o3d.t.geometry.Image(_tensor(frustum_depth_m, np.float32)),
-                _tensor(K, np.float64),
-                _tensor(inv_T(T_world_cam), np.float64),
-                1.0,
-                depth_max,
-            )
+        T_world_shifted = T_world_cam.copy()
+        T_world_shifted[:3, 3] += 0.5 * self.cfg.voxel_size_m
+        blocks = self._ray_blocks(K, T_world_shifted, frustum_depth_m, depth_max)
         if blocks is None or blocks.shape[0] == 0:
             return Rendering(np.zeros((height, width), np.float32), None, None)
         attrs = ["depth"] + (["normal"] if with_normals else [])
         if with_color and self.has_color:
             attrs.append("color")
-        T_cam_world = inv_T(T_world_cam)
-        down = _range_map_factor(width, height)
-        block_m = self.cfg.voxel_size_m * self.cfg.block_resolution
-        needed = fragments_bound(blocks.numpy(), K, T_cam_world, width, height, down, block_m)
-        self._range_map.ensure(self.vbg, needed)  # else Open3D drops blocks from the range map
-        out = self.vbg.ray_cast(
-            blocks,
-            _tensor(K, np.float64),
-            _tensor(T_cam_world, np.float64),
-            width,
-            height,
-            attrs,
-            1.0,
-            depth_min_m,
-            depth_max,
-            weight,
-            self.cfg.trunc_voxels,
-            down,
-        )
+        depth_range = (depth_min_m, depth_max)
+        out = self._march(blocks, K, T_world_shifted, (width, height), attrs, depth_range, weight)
         depth = out["depth"].numpy()[..., 0].astype(np.float32)
         if self.cfg.raycast_refine and not with_color:
-            depth = self._refine(
-                depth, blocks, K, T_world_cam_fused, (depth_min_m, depth_max), weight
-            )
+            depth = self._refine(depth, blocks, K, T_world_cam, depth_range, weight)
         bad = ~np.isfinite(depth)
         if bad.any():
             log.debug("ray-cast produced %d non-finite depths", int(bad.sum()))
@@ -301,9 +273,51 @@ class TSDFVolume:
         color = None
         if "color" in attrs:
             color = _color_at_surface(
-                out["color"].numpy(), depth, K, T_world_cam[:3, :3], 0.5 * self.cfg.voxel_size_m
+                out["color"].numpy(), depth, K, T_world_shifted[:3, :3], 0.5 * self.cfg.voxel_size_m
             )
         return Rendering(depth, normals, color)
+
+    def _ray_blocks(
+        self,
+        K: np.ndarray,
+        T_world_cam: np.ndarray,
+        frustum_depth_m: np.ndarray | None,
+        depth_max_m: float,
+    ) -> o3c.Tensor | None:
+        """The blocks a ray-cast from ``T_world_cam`` may hit: those ``frustum_depth_m`` (same
+        intrinsics) touches from there when given, else the blocks last integrated."""
+        if frustum_depth_m is None or self.n_integrated == 0:
+            return self._last_blocks
+        return self._touched_blocks(
+            o3d.t.geometry.Image(_tensor(frustum_depth_m, np.float32)),
+            _tensor(K, np.float64),
+            _tensor(inv_T(T_world_cam), np.float64),
+            1.0,
+            depth_max_m,
+        )
+
+    def _march(
+        self,
+        blocks: o3c.Tensor,
+        K: np.ndarray,
+        T_world_cam: np.ndarray,
+        size: tuple[int, int],
+        attrs: list[str],
+        depth_range: tuple[float, float],
+        weight: float,
+    ) -> dict:
+        """Open3D's ray-cast of ``blocks`` (``size``: width, height), its range map grown to
+        what the blocks need first (else Open3D drops blocks from it)."""
+        width, height = size
+        T_cam_world = inv_T(T_world_cam)
+        down = _range_map_factor(width, height)
+        block_m = self.cfg.voxel_size_m * self.cfg.block_resolution
+        needed = fragments_bound(blocks.numpy(), K, T_cam_world, width, height, down, block_m)
+        self._range_map.ensure(self.vbg, needed)
+        return self.vbg.ray_cast(
+            blocks, _tensor(K, np.float64), _tensor(T_cam_world, np.float64), width, height,
+            attrs, 1.0, *depth_range, weight, self.cfg.trunc_voxels, down,
+        )  # fmt: skip
 
     def _refine(
         self,
