@@ -159,6 +159,7 @@ class Slam:
         self.skipped: list[dict[str, Any]] = []
         self.stage_ms = {"load": 0.0, "tracking": 0.0, "integration": 0.0, "loop": 0.0}
         self.elapsed_s = 0.0  # time spent in step() and skip()
+        self.finished = False  # finish() was called: no more frames
         self.graph_adjusted = False  # a mid-run BA moved the graph's nodes since it was solved
 
     # --- frames
@@ -172,7 +173,13 @@ class Slam:
     def step(self, frame: Frame) -> FrameResult:
         """Track one frame, fuse it, and handle keyframes, loops and relocalisation. A
         malformed frame (bad ``K``, depth not HxW, ...) is a :class:`SlamError` that leaves the
-        system as it was; NaN, infinite or negative depth counts as no depth."""
+        system as it was; NaN, infinite or negative depth counts as no depth. After
+        :meth:`finish` the run is over: a new :class:`Slam` takes new frames."""
+        if self.finished:
+            raise SlamError(
+                f"frame {getattr(frame, 'index', '?')}: step() after finish(): the run is over "
+                "(its result was made); start a new slam.Slam for more frames"
+            )
         frame = checked_frame(frame)
         t_start = time.perf_counter()
         ratio, gap = self.clock.tick(frame.timestamp)
@@ -257,6 +264,7 @@ class Slam:
                 "no frame could be tracked: every frame was unreadable or had no usable depth "
                 "(see the log and the skipped/lost frames)"
             )
+        self.finished = True
         t0 = time.perf_counter()
         closer, frames = self.closer, self.frames
         roots = np.array([closer.segment_root(s) for s in frames.segment])

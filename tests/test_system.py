@@ -137,3 +137,16 @@ def test_a_state_of_another_configuration_is_refused_naming_the_difference(frame
         other.load_state_dict(state)
     same = slam.Slam(config_from_dict({**FAST, "dataset": {"max_frames": 5}}))  # where frames come from
     same.load_state_dict(state)
+
+
+def test_step_of_no_frame_or_after_finish_is_a_clear_error(frames):
+    """step(None) raised a TypeError about dataclasses; step() after finish() was accepted."""
+    _, fr = frames
+    system = slam.Slam(config_from_dict(FAST))
+    with pytest.raises(slam.SlamError, match="step.. takes a slam.Frame.*got NoneType"):
+        system.step(None)
+    for f in fr[:3]:
+        system.step(f)
+    system.finish()
+    with pytest.raises(slam.SlamError, match="step.. after finish.."):
+        system.step(fr[3])

@@ -158,7 +158,13 @@ class Frame:
 def checked_frame(frame: Frame) -> Frame:
     """``frame`` as the system takes it: checked again (a frame's fields can be replaced after
     it was made), depth as float32 with NaN, infinite and negative values set to 0 (no depth;
-    a debug log says how many). The caller's arrays are not changed."""
+    a debug log says how many). The caller's arrays are not changed. Anything but a
+    :class:`Frame` is a :class:`FrameError`."""
+    if not isinstance(frame, Frame):
+        raise FrameError(
+            f"step() takes a slam.Frame(index, timestamp, color, depth_m, K), got "
+            f"{type(frame).__name__}"
+        )
     frame = replace(frame)  # runs the checks of Frame.__post_init__ on the current fields
     depth = frame.depth_m
     if depth.dtype != np.float32:
