@@ -197,7 +197,7 @@ def eval_cmd(
             f"{gt} is not a folder: give a run folder (`slam eval RUN_DIR`) or a ground-truth "
             f"and an estimated trajectory file (`slam eval GT EST`)"
         )
-    gt_traj, est_traj = read_tum(gt), read_tum(est)
+    gt_traj, est_traj = read_tum(gt, skip_non_finite=True), read_tum(est)
     res = slam_eval.evaluate_full(
         gt_traj,
         est_traj,

@@ -5,6 +5,7 @@ TUM format: one pose per line, ``timestamp tx ty tz qx qy qz qw``, ``#`` starts 
 
 from __future__ import annotations
 
+import logging
 import os
 import tempfile
 from collections.abc import Iterable
@@ -15,6 +16,8 @@ import numpy as np
 
 from slam.errors import TrajectoryError
 from slam.geometry import pose_to_tum, tum_to_pose
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -46,24 +49,29 @@ class Trajectory:
         return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
 
 
-def read_tum(path: str | Path) -> Trajectory:
-    """Read a TUM trajectory file. Raises :class:`TrajectoryError` naming the line on bad input."""
+def read_tum(path: str | Path, skip_non_finite: bool = False) -> Trajectory:
+    """Read a TUM trajectory file. Raises :class:`TrajectoryError` naming the line on bad input;
+    with ``skip_non_finite`` (ground truth: a motion-capture dropout is written as NaN) rows
+    with a non-finite value are left out, with a warning saying how many."""
     path = Path(path)
     if not path.is_file():
         raise TrajectoryError(f"{path}: trajectory file not found")
     try:
         with path.open(encoding="utf-8-sig") as f:  # a byte-order mark is not part of line 1
-            return parse_tum(f, str(path))
+            return parse_tum(f, str(path), skip_non_finite)
     except UnicodeDecodeError as exc:
         raise TrajectoryError(f"{path}: not UTF-8 text: {exc}") from exc
     except OSError as exc:
         raise TrajectoryError(f"{path}: cannot read: {exc}") from exc
 
 
-def parse_tum(lines: Iterable[str], source: str = "<text>") -> Trajectory:
+def parse_tum(
+    lines: Iterable[str], source: str = "<text>", skip_non_finite: bool = False
+) -> Trajectory:
     """Parse TUM-format lines (``source`` names them in errors), as :func:`read_tum` does."""
     stamps: list[float] = []
     poses: list[np.ndarray] = []
+    skipped: list[int] = []
     for lineno, line in enumerate(lines, 1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -79,11 +87,19 @@ def parse_tum(lines: Iterable[str], source: str = "<text>") -> Trajectory:
         except ValueError as exc:
             raise TrajectoryError(f"{source}:{lineno}: not a number: {line[:80]!r}") from exc
         if not np.all(np.isfinite(values)):
+            if skip_non_finite and np.isfinite(values[0]):
+                skipped.append(lineno)
+                continue
             raise TrajectoryError(f"{source}:{lineno}: non-finite value: {line[:80]!r}")
         if np.linalg.norm(values[4:8]) < 1e-9:
             raise TrajectoryError(f"{source}:{lineno}: zero quaternion")
         stamps.append(values[0])
         poses.append(tum_to_pose(values[1:]))
+    if skipped:
+        log.warning(
+            "%s: %d rows with non-finite values left out (lines %s)",
+            source, len(skipped), ", ".join(map(str, skipped[:5])) + (", ..." if len(skipped) > 5 else ""),
+        )  # fmt: skip
     if not stamps:
         raise TrajectoryError(f"{source}: no poses in file")
     return Trajectory(np.array(stamps), np.stack(poses))

@@ -352,7 +352,7 @@ class TumSequence(Sequence):
             gt_path = self.path / "groundtruth.txt"
             if gt_path.is_file():
                 try:
-                    self._gt = interpolate_poses(read_tum(gt_path), self._stamps)
+                    self._gt = interpolate_poses(read_tum(gt_path, skip_non_finite=True), self._stamps)
                 except TrajectoryError as exc:
                     log.warning(
                         "%s: ground truth unreadable, evaluation disabled: %s", gt_path, exc

@@ -521,4 +521,4 @@ def evaluate(
 
 def evaluate_files(gt_path: str | Path, est_path: str | Path, **kw: Any) -> dict[str, Any]:
     """:func:`evaluate` on two TUM files (read with :func:`slam.trajectory.read_tum`)."""
-    return evaluate(read_tum(gt_path), read_tum(est_path), **kw)
+    return evaluate(read_tum(gt_path, skip_non_finite=True), read_tum(est_path), **kw)

@@ -40,7 +40,7 @@ def sequence_ground_truth(
     seq_dir = Path(seq_dir)
     gt_file = seq_dir / GROUND_TRUTH_FILE
     if gt_file.is_file():
-        return read_tum(gt_file), str(gt_file)
+        return read_tum(gt_file, skip_non_finite=True), str(gt_file)
     if sequence is None:
         from slam.data.loader import open_sequence
 
@@ -66,7 +66,7 @@ def load_run_ground_truth(
     """
     run = run_dir if isinstance(run_dir, RunFolder) else RunFolder(run_dir)
     if gt_path is not None:
-        return read_tum(gt_path), str(gt_path)
+        return read_tum(gt_path, skip_non_finite=True), str(gt_path)
     try:
         cfg = run.config()
     except ConfigError as exc:  # e.g. a key a later version dropped: evaluate all the same

@@ -799,3 +799,21 @@ def test_cli_eval_argument_errors(tmp_path, files):
     assert res.exit_code == 2 and "no metrics.json" in _flat(res.output)
     res = runner.invoke(app, ["eval", str(files[0]), str(files[1]), "--rpe-delta", "x"])
     assert res.exit_code == 2 and "cannot read RPE delta" in _flat(res.output)
+
+
+def test_ground_truth_rows_with_nan_are_left_out_and_counted(tmp_path, caplog):
+    """A motion-capture dropout written as NaN gave no ATE at all; ground truth is now
+    evaluated on its finite rows, with a warning saying how many were left out. An estimate
+    with NaN is still an error."""
+    from slam.tools.ground_truth import sequence_ground_truth
+    from slam.trajectory import TrajectoryError, read_tum
+
+    lines = [f"{t:.2f} {0.01 * t:.4f} 0 0 0 0 0 1" for t in range(20)]
+    lines[7] = "7.00 nan nan nan 0 0 0 1"
+    lines[12] = "12.00 0 0 0 nan nan nan nan"
+    (tmp_path / "groundtruth.txt").write_text("\n".join(lines) + "\n")
+    gt, _ = sequence_ground_truth(tmp_path)
+    assert len(gt) == 18
+    assert "2 rows with non-finite values left out (lines 8, 13)" in caplog.text
+    with pytest.raises(TrajectoryError, match=":8: non-finite value"):
+        read_tum(tmp_path / "groundtruth.txt")
