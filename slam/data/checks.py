@@ -7,7 +7,7 @@ import logging
 import numpy as np
 
 from slam.data.base import Sequence
-from slam.errors import CalibrationError, FrameReadError, FrameSizeError
+from slam.errors import CalibrationError, DatasetError, FrameReadError, FrameSizeError
 
 log = logging.getLogger(__name__)
 
@@ -31,10 +31,12 @@ def check_sequence(sequence: Sequence, indices: list[int], probe: int = 5) -> No
     """Read the first readable frames (up to ``probe`` with depth): the first one's depth
     image must have the calibration's size, and their median depth must lie within
     0.1-20 m (else the depth scale is wrong: the error says which one fits). Unreadable frames
-    are left for the run to report."""
+    are left for the run to report, unless none of those probed can be read (8-bit depth, a
+    wrong folder): then the first one's reason is the error."""
     calib = sequence.calibration
     medians: list[float] = []
     sized = False
+    unreadable: list[FrameReadError] = []
     for i in indices[: 4 * probe]:
         try:
             frame = sequence[i]
@@ -42,7 +44,8 @@ def check_sequence(sequence: Sequence, indices: list[int], probe: int = 5) -> No
             if not sized:  # the first readable frame: the calibration is wrong, not the frame
                 raise CalibrationError(f"{sequence.path}: {exc}") from exc
             continue
-        except FrameReadError:
+        except FrameReadError as exc:
+            unreadable.append(exc)
             continue
         sized = True
         valid = frame.depth_m[frame.depth_m > 0]
@@ -50,6 +53,11 @@ def check_sequence(sequence: Sequence, indices: list[int], probe: int = 5) -> No
             medians.append(float(np.median(valid)))
         if len(medians) >= probe:
             break
+    if not sized and unreadable:
+        raise DatasetError(
+            f"{sequence.path}: none of the first {len(unreadable)} frames can be read: "
+            f"{unreadable[0]}"
+        )
     if not medians:
         log.warning(
             "%s: the first frames have no depth at all; frames stay lost until depth appears",

@@ -246,3 +246,18 @@ def test_a_depth_frame_that_is_not_a_regular_file_is_refused_at_once(tmp_path, k
             f.truncate(images.MAX_IMAGE_BYTES + 1)  # sparse: no disk used
     with pytest.raises(FrameReadError, match="not a regular file|more than any frame"):
         images.read_depth(path, 7, 5000.0)
+
+
+def test_8_bit_depth_is_named_before_the_run(tmp_path):
+    """Every frame's depth 8-bit: the run said only "no frame could be tracked ... see the
+    log" (silent under -q); the pre-flight check now names the reason."""
+    from tests.data.test_tum import _write_seq
+
+    root = _write_seq(tmp_path / "s", [0.0, 0.033, 0.066], [0.0, 0.033, 0.066])
+    for p in (root / "depth").iterdir():
+        cv2.imwrite(str(p), np.full((48, 64), 200, np.uint8))
+    from slam.data.checks import check_sequence
+
+    seq = open_sequence(root)
+    with pytest.raises(DatasetError, match="none of the first 3 frames can be read.*dtype uint8"):
+        check_sequence(seq, list(range(len(seq))))
