@@ -17,6 +17,7 @@ This package is the one owner of the folder: :mod:`~slam.run_folder.layout` name
 
 from __future__ import annotations
 
+import json
 import shutil
 import tempfile
 from pathlib import Path
@@ -167,7 +168,26 @@ def require_complete(run_dir: str | Path) -> Path:
         else:
             why = "it is not a run folder of `slam run`"
         raise RunFolderError(f"{run_dir}: no {METRICS_FILE}, so no complete run: {why}")
+    _check_metrics(run_dir / METRICS_FILE)
     return run_dir
+
+
+def _check_metrics(path: Path) -> None:
+    """``metrics.json`` must be a JSON object (an empty or garbage file passed for a complete
+    run)."""
+    try:
+        data = json.loads(path.read_text())
+    except RecursionError:
+        data = None
+        why = "nested too deeply"
+    except (OSError, ValueError) as exc:
+        data, why = None, type(exc).__name__
+    else:
+        why = "not a JSON object"
+    if not isinstance(data, dict):
+        raise RunFolderError(
+            f"{path}: not a run's metrics ({why}); the folder is damaged: run the sequence again"
+        )
 
 
 def discard_unfinished(run_dir: Path) -> None:

@@ -191,3 +191,21 @@ def test_damaged_json_in_a_run_folder_is_a_clear_error_or_n_a(small_run, tmp_pat
     (copy / METRICS_FILE).write_text(json.dumps(stringy))
     res = CliRunner().invoke(app, ["report", str(copy)])
     assert res.exit_code == 2 and "holds a value of the wrong kind" in res.output, res.output
+
+
+@pytest.mark.parametrize("text", ["", "garbage", "[1, 2]", '"run"'])
+def test_an_empty_or_garbage_metrics_json_is_not_a_complete_run(small_run, tmp_path, text):
+    """`slam eval` and `slam view` returned 0 on them."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from slam.cli import app
+    from slam.run_folder import METRICS_FILE
+
+    _, _, run_dir = small_run
+    copy = Path(shutil.copytree(run_dir, tmp_path / "copy"))
+    (copy / METRICS_FILE).write_text(text)
+    for cmd in (["eval", str(copy)], ["view", str(copy), "--image-scale", "0"]):
+        res = CliRunner().invoke(app, cmd)
+        assert res.exit_code == 2 and "not a run's metrics" in res.output, (cmd, res.output)
