@@ -171,6 +171,16 @@ def _in_run(run_dir: Path, name: Any, where: str) -> Path:
     return run_dir / p
 
 
+def _inside(run_dir: Path, path: Path, what: str) -> None:
+    """``path`` must stay inside ``run_dir`` once links are followed: a checkpoint neither
+    writes nor reads outside its run folder."""
+    if not path.resolve().is_relative_to(run_dir.resolve()):
+        raise CheckpointError(
+            f"{path}: {what} is a link that leaves the run folder {run_dir}; remove the link "
+            f"and {_RESTART}"
+        )
+
+
 def _own_name(name: Any, pattern: re.Pattern[str], where: str) -> str:
     if type(name) is not str or not pattern.fullmatch(name):
         raise ValueError(f"{where}: {name!r} is not a checkpoint file name")
@@ -237,6 +247,7 @@ def write_checkpoint(
     run_dir = Path(run_dir)
     folder = run_dir / CHECKPOINT_DIR
     folder.mkdir(parents=True, exist_ok=True)
+    _inside(run_dir, folder, "the checkpoint folder")
     serial, committed = _previous(folder)
 
     # encode everything first: a state that is not plain data changes nothing on disk
@@ -324,16 +335,19 @@ def read_checkpoint(run_dir: str | Path) -> tuple[dict[str, Any], int]:
             f"{run_dir}: no checkpoint to resume from ({folder / STATE_FILE} is missing); "
             "runs write one every N frames with `slam run --checkpoint-every N`"
         )
+    _inside(run_dir, folder, "the checkpoint folder")
     header = _read_header(folder)
     current = folder / STATE_FILE
     try:
         current = folder / _own_name(header["arrays"], _STATE_ARRAYS, "arrays")
+        _inside(run_dir, current, "the state's arrays")
         core = decode(header["state"], _read_npz(current))
         if not isinstance(core, dict) or not isinstance(core.get("model"), dict):
             raise ValueError("the state is not a dict with a model")
         keyframes = []
         for name in _list(core["keyframes"]):
             current = folder / _own_name(name, _KEYFRAME, "keyframes")
+            _inside(run_dir, current, "a keyframe file")
             kf = _read_document(current)
             if not isinstance(kf, dict):
                 raise ValueError("a keyframe is not a dict")
@@ -353,11 +367,7 @@ def read_checkpoint(run_dir: str | Path) -> tuple[dict[str, Any], int]:
                         f"{current}: submap file {path} is missing (spilled submaps stay in "
                         f"RUN_DIR/submaps/ until the run ends); {_RESTART}"
                     )
-                if not path.resolve().is_relative_to(run_dir.resolve()):
-                    raise CheckpointError(
-                        f"{current}: submap file {path} is a link that leaves the run folder "
-                        f"{run_dir}; {_RESTART}"
-                    )
+                _inside(run_dir, path, "a spilled submap file")
                 current = path
                 _check_volume_file(path)
                 current = folder / STATE_FILE

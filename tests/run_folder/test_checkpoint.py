@@ -585,5 +585,27 @@ def test_a_spilled_submap_that_is_a_pickle_or_a_link_outside_is_refused(run, tmp
     outside = Path(shutil.copytree(run / "submaps", tmp_path / "outside"))
     shutil.rmtree(run / "submaps")
     (run / "submaps").symlink_to(outside, target_is_directory=True)
-    with pytest.raises(CheckpointError, match="a link that leaves the run folder"):
+    with pytest.raises(CheckpointError, match="link that leaves the run folder"):
         read_checkpoint(run)
+
+
+def test_a_checkpoint_folder_or_keyframe_linked_outside_is_refused(run, tmp_path):
+    """checkpoint/ linked to an outside folder had new checkpoint files written there; a
+    keyframe file linked outside was read."""
+    ckpt = run / "checkpoint"
+    kf = next(ckpt.glob("kf_*.npz"))
+    outside = tmp_path / "outside.npz"
+    shutil.copy(kf, outside)
+    kf.unlink()
+    kf.symlink_to(outside)
+    with pytest.raises(CheckpointError, match="a keyframe file is a link that leaves"):
+        read_checkpoint(run)
+    moved = Path(shutil.copytree(ckpt, tmp_path / "elsewhere", symlinks=True))
+    shutil.rmtree(ckpt)
+    ckpt.symlink_to(moved, target_is_directory=True)
+    with pytest.raises(CheckpointError, match="the checkpoint folder is a link that leaves"):
+        read_checkpoint(run)
+    from slam.run_folder.checkpoint import write_checkpoint
+
+    with pytest.raises(CheckpointError, match="the checkpoint folder is a link that leaves"):
+        write_checkpoint(run, {"keyframes": [], "model": {"submaps": []}}, 0)
