@@ -139,8 +139,8 @@ def command(*args, **kwargs) -> Callable[[Callable], Callable]:
                 _fail(exc)
             except KeyboardInterrupt:  # a second Ctrl-C, or one outside a run's frame loop
                 console.print(
-                    "[bold yellow]stopped:[/] interrupted; a run folder holding a checkpoint "
-                    "continues with `slam run --resume OUT`"
+                    "[bold yellow]stopped:[/] interrupted at once; if the run folder holds a "
+                    "checkpoint (RUN_DIR/checkpoint/), `slam run --resume RUN_DIR` continues it"
                 )
                 raise typer.Exit(code=130) from None
 
