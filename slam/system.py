@@ -405,5 +405,5 @@ def _check_same_config(saved: Any, current: dict[str, Any]) -> None:
         more = f" (and {len(differ) - 5} more)" if len(differ) > 5 else ""
         raise SlamError(
             f"the checkpoint was written under another configuration: {shown}{more}; resume "
-            "with the run's own config.yaml, or start the run again"
+            "with the configuration the run was started with, or start the run again"
         )

@@ -226,7 +226,7 @@ class TumSequence(Sequence):
             if self._unpaired["depth"]:
                 log.warning(
                     "%s: %d of %d depth images have no colour image within %g s: they are not "
-                    "frames of the run (metrics.json: unpaired_images)",
+                    "frames of the run (the run reports them as unpaired_images)",
                     self.path, self._unpaired["depth"], len(depth_stamps), max_dt,
                 )  # fmt: skip
             if self._unpaired["rgb"]:
