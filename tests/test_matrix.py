@@ -104,3 +104,24 @@ def test_the_handheld_rows_are_recorded_as_a_handheld_kinect(tmp_path, monkeypat
     made = json.loads((rows[0].path / ".complete").read_text())
     assert made["handheld"] == matrix.HANDHELD["desk"] and made["kinect"] is True
     assert made["color_offset_ms"] == matrix.UNSYNCED_MS and made["seed"] == 1
+
+
+def test_the_results_page_is_written_from_a_matrix_result(tmp_path, monkeypatch):
+    """benchmarks/results_page.py: real rows first, then the synthetic ones, in millimetres."""
+    page = _load("results_page")
+    matrix = {
+        "machine": {"cpus": 2, "platform": "Linux", "python": "3.11"},
+        "rows": {
+            "tum-fr1-xyz": {"frames": 792, "ate_rmse_odometry_m": 0.0109, "ate_rmse_m": 0.0085,
+                            "step_err_max_m": 0.0138, "fps": 15.4, "colour_frames": 15,
+                            "tracking_failures": 0},
+            "wall-x1-s0": {"frames": 240, "ate_rmse_odometry_m": 0.004, "ate_rmse_m": 0.003},
+        },
+    }  # fmt: skip
+    source = tmp_path / "matrix-x.json"
+    source.write_text(json.dumps(matrix))
+    monkeypatch.setattr(page, "ROOT", tmp_path)
+    text = page.render(matrix, source)
+    real, synthetic = text.split("## Synthetic scene matrix")
+    assert "| `tum-fr1-xyz` | 792 | 10.9 / **8.5** | 13.8 | 15.4 | 15 | 0 |" in real
+    assert "| `wall-x1-s0` | 240 | 4.0 / **3.0** | - | - | - | - |" in synthetic

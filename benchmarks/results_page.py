@@ -1,0 +1,102 @@
+"""docs/results.md: today's default on every shared sequence and the scene matrix, from one
+scene-matrix run.
+
+    python benchmarks/results_page.py --run            # run the matrix (~45 min), then write
+    python benchmarks/results_page.py --matrix benchmarks/results/matrix-s60-head.json
+
+``--run`` runs ``benchmarks/matrix.py --tag results`` (every shared real sequence, again at
+three times the speed, and every synthetic row) in this tree and writes the page from its
+result; ``--matrix FILE`` writes it from a result already made. The page states the date, the
+machine and the commit, and per row odometry / final ATE, worst step error, fps and the frames
+colour joined depth in. Nothing else should run meanwhile when the fps matter.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from common import ROOT
+
+PAGE = ROOT / "docs" / "results.md"
+
+
+def _commit() -> str:
+    out = subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    )
+    return out.stdout.strip() or "unknown"
+
+
+def _mm(v: float | None) -> str:
+    return "-" if v is None else f"{1000 * v:.1f}"
+
+
+def _row(name: str, r: dict) -> str:
+    fps = r.get("fps")
+    return (
+        f"| `{name}` | {r.get('frames', '-')} | {_mm(r.get('ate_rmse_odometry_m'))} / "
+        f"**{_mm(r.get('ate_rmse_m'))}** | {_mm(r.get('step_err_max_m'))} | "
+        f"{'-' if fps is None else f'{fps:.1f}'} | {r.get('colour_frames', '-')} | "
+        f"{r.get('tracking_failures', '-')} |"
+    )
+
+
+def render(matrix: dict, source: Path) -> str:
+    rows = matrix["rows"]
+    real = [n for n in rows if n.startswith(("tum-", "7scenes"))]
+    synthetic = [n for n in rows if n not in real]
+    m = matrix.get("machine", {})
+    head = [
+        "# Results",
+        "",
+        f"Today's default configuration on every shared sequence and the scene matrix: "
+        f"commit `{_commit()}`, {time.strftime('%Y-%m-%d', time.localtime(source.stat().st_mtime))},"
+        f" {m.get('cpus', '?')} CPU cores, {m.get('platform', '?')}, Python "
+        f"{m.get('python', '?')}. Written by `python benchmarks/results_page.py --run` from "
+        f"`{source.relative_to(ROOT)}`, one run per row (run-to-run spreads: "
+        "docs/decisions.md).",
+        "",
+        "ATE in millimetres (RMSE after SE(3) alignment; odometry / **final**), the worst "
+        "frame-to-frame step error of odometry (mm), whole-run fps (the matrix runs rows "
+        "one after another on the same machine: compare fps within a page only), the frames "
+        "colour joined depth in, and the frames lost. `-x3`: the recording on every third "
+        "frame (its motion three times as fast); `-hh`: synthetic rows imitating a hand-held "
+        "Kinect v1.",
+        "",
+    ]
+    table = [
+        "| sequence | frames | odometry / final ATE (mm) | worst step (mm) | fps | colour frames "
+        "| lost |",
+        "|---|---:|---|---:|---:|---:|---:|",
+    ]
+    out = head + ["## Real recordings", ""] + table + [_row(n, rows[n]) for n in real]
+    out += ["", "## Synthetic scene matrix", ""] + table + [_row(n, rows[n]) for n in synthetic]
+    return "\n".join(out) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--run", action="store_true", help="run the scene matrix first")
+    ap.add_argument("--matrix", type=Path, default=None, help="a matrix result to write from")
+    args = ap.parse_args()
+    source = args.matrix
+    if args.run:
+        subprocess.run(
+            [sys.executable, str(ROOT / "benchmarks" / "matrix.py"), "--tag", "results"],
+            check=True,
+        )
+        source = ROOT / "benchmarks" / "results" / "matrix-results.json"
+    if source is None:
+        ap.error("give --run or --matrix FILE")
+    source = source.resolve()
+    PAGE.write_text(render(json.loads(source.read_text()), source))
+    print(f"wrote {PAGE}")
+
+
+if __name__ == "__main__":
+    main()
