@@ -200,8 +200,8 @@ def _recorded(
         if recorder is not None:
             recorder.abort()
         raise
-    if deferred.received is not None:
-        log.warning("%s: %s holds the complete run", signal.Signals(deferred.received).name, out)
+    if deferred.requested is not None:
+        log.warning("%s: %s holds the complete run", signal.Signals(deferred.requested).name, out)
     if recorder is not None:
         recorder.finish(result)
     return result

@@ -202,31 +202,16 @@ class StopOnSignal:
         self._previous = {}
 
 
-class DeferSignals:
+class DeferSignals(StopOnSignal):
     """While active (in the main thread only), SIGINT and SIGTERM wait: what runs (writing a
-    finished run's results) completes, then the signal is reported (``received``) instead of
+    finished run's results) completes, then the signal is reported (``requested``) instead of
     killing the process half way through the files."""
 
-    def __init__(self) -> None:
-        self.received: int | None = None
-        self._previous: dict[int, Any] = {}
-
-    def __enter__(self) -> DeferSignals:
-        if threading.current_thread() is threading.main_thread():
-            for sig in StopOnSignal.SIGNALS:
-                self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
     def _handle(self, signum: int, frame: Any) -> None:
-        self.received = signum
+        self.requested = signum
         log.warning(
             "%s: the run is finished; writing its results first", signal.Signals(signum).name
         )
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        self._previous = {}
 
 
 def _interrupted(
