@@ -158,8 +158,8 @@ class Checkpoints:
             write_checkpoint(self.run_dir, system.state_dict(), done, every)
             self.count += 1
             return True
-        except OSError as exc:  # e.g. a full disk
-            log.warning(
+        except OSError as exc:  # e.g. a full disk: an error, shown under --quiet too
+            log.error(
                 "checkpoint at frame %d of %d not written (%s); the run goes on, and "
                 "--resume would continue from the previous checkpoint",
                 done, total, exc,

@@ -62,15 +62,47 @@ def is_chunked(run_dir: str | Path) -> bool:
 
 
 def read_plan(run_dir: str | Path) -> dict[str, Any]:
+    """``chunks/plan.json``, checked: a RunFolderError names what is wrong with a damaged one."""
+    path = plan_path(run_dir)
     try:
-        plan = json.loads(plan_path(run_dir).read_text())
-        plan["chunks"] = [Chunk(**c) for c in plan["chunks"]]
-        return plan
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise RunFolderError(
-            f"{plan_path(run_dir)}: not a readable chunk plan ({exc}); start the run again "
-            "with --overwrite"
-        ) from exc
+        raw = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise RunFolderError(_plan_advice(path, str(exc))) from exc
+    except RecursionError:
+        raise RunFolderError(_plan_advice(path, "nested too deeply")) from None
+    problem = _plan_problem(raw)
+    if problem:
+        raise RunFolderError(_plan_advice(path, problem))
+    return {**raw, "chunks": [Chunk(**c) for c in raw["chunks"]]}
+
+
+def _plan_advice(path: Path, problem: str) -> str:
+    return f"{path}: not a readable chunk plan ({problem}); start the run again with --overwrite"
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _plan_problem(raw: Any) -> str | None:
+    """What makes ``raw`` not a plan :func:`_plan` writes (None when it is one)."""
+    if not isinstance(raw, dict):
+        return f"a {type(raw).__name__}, not an object"
+    for key in ("workers", "overlap"):
+        if not _is_count(raw.get(key)):
+            return f"{key!r} is {raw.get(key)!r}, not a count"
+    frames, chunks = raw.get("frames"), raw.get("chunks")
+    if not isinstance(frames, list) or not all(_is_count(f) for f in frames):
+        return "'frames' is not a list of frame indices"
+    if not isinstance(chunks, list) or not chunks:
+        return "'chunks' is not a list of chunks"
+    fields = set(Chunk.__dataclass_fields__)
+    for k, c in enumerate(chunks):
+        if not isinstance(c, dict) or set(c) != fields or not all(map(_is_count, c.values())):
+            return f"chunk {k} is not an object of the counts {sorted(fields)}"
+        if not (c["number"] == k and c["start"] < c["keep_stop"] <= c["stop"] <= len(frames)):
+            return f"chunk {k} ({c}) does not fit the plan's {len(frames)} frames"
+    return None
 
 
 def run_chunked(

@@ -220,6 +220,20 @@ class Sequence(ABC):
         ``depth``): a depth image without a colour image near it in time is not a frame."""
         return {}
 
+    def _fit_color(self, color: np.ndarray, depth: np.ndarray, index: int) -> np.ndarray:
+        """``color`` at ``depth``'s size; a colour image that cannot line up with depth after
+        the resize is reported once per sequence (:func:`~slam.data.images.fit_color`)."""
+        from slam.data.images import fit_color
+
+        color, warning = fit_color(color, depth.shape)
+        if warning is not None and not getattr(self, "_misfit_reported", False):
+            self._misfit_reported = True
+            log.warning(
+                "%s: frame %d: %s; check the folder's colour images (later frames like it "
+                "are not reported)", self.path, index, warning,
+            )  # fmt: skip
+        return color
+
     @abstractmethod
     def __len__(self) -> int: ...
 

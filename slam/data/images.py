@@ -184,3 +184,25 @@ class Undistorter:
 
     def color(self, color: np.ndarray) -> np.ndarray:
         return cv2.remap(color, self.map_x, self.map_y, cv2.INTER_LINEAR)
+
+
+#: a colour image whose width/height ratio differs from the depth's by more than this fraction
+#: is not the same view at another resolution
+ASPECT_TOLERANCE = 0.02
+
+
+def fit_color(color: np.ndarray, depth_shape: tuple[int, ...]) -> tuple[np.ndarray, str | None]:
+    """``color`` at the depth image's size (bilinear), and a warning when the resize cannot
+    keep colour and depth registered: another width/height ratio (a 1x1 image stretched to
+    640x480), or a colour image under a quarter of the depth's width (None otherwise)."""
+    h, w = depth_shape[:2]
+    ch, cw = color.shape[:2]
+    if (ch, cw) == (h, w):
+        return color, None
+    warning = None
+    if abs((cw / ch) / (w / h) - 1.0) > ASPECT_TOLERANCE or 4 * cw < w:
+        warning = (
+            f"its colour image is {cw}x{ch} and its depth image {w}x{h}: not the same view at "
+            f"another resolution, so colour stretched to {w}x{h} does not line up with depth"
+        )
+    return cv2.resize(color, (w, h), interpolation=cv2.INTER_LINEAR), warning

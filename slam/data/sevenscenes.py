@@ -99,10 +99,8 @@ class SevenScenesSequence(Sequence):
             size=(c.width, c.height),
         )  # fmt: skip
         color = read_color(self._color[index], index) if self._color is not None else None
-        if color is not None and color.shape[:2] != depth.shape:
-            import cv2
-
-            color = cv2.resize(color, (depth.shape[1], depth.shape[0]))
+        if color is not None:
+            color = self._fit_color(color, depth, index)
         if self._undistort is not None and depth.shape == self._undistort.map_x.shape:
             depth = self._undistort.depth(depth)
             color = None if color is None else self._undistort.color(color)

@@ -331,9 +331,7 @@ class TumSequence(Sequence):
         )
         color = None
         if self._rgb is not None:
-            color = read_color(self.path / self._rgb[index], index)
-            if color.shape[:2] != depth.shape:
-                color = _resize_to(color, depth.shape)
+            color = self._fit_color(read_color(self.path / self._rgb[index], index), depth, index)
         if self._undistort is not None and depth.shape == self._undistort.map_x.shape:
             depth = self._undistort.depth(depth)
             color = None if color is None else self._undistort.color(color)
@@ -358,9 +356,3 @@ class TumSequence(Sequence):
                         "%s: ground truth unreadable, evaluation disabled: %s", gt_path, exc
                     )
         return self._gt
-
-
-def _resize_to(img: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    import cv2
-
-    return cv2.resize(img, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)

@@ -438,32 +438,12 @@ def write_mesh(path: str | Path, mesh: o3d.geometry.TriangleMesh) -> None:
     os.replace(tmp, path)
 
 
-_PLY_BYTES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
-              "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
-              "float": 4, "float32": 4, "double": 8, "float64": 8}  # fmt: skip
-
-
 def _ply_size(path: Path) -> int | None:
     """The size in bytes a binary PLY file of triangles must have by its header (None when the
     header is unreadable)."""
+    from slam.mapping.ply import read_ply_header
+
     try:
-        with open(path, "rb") as f:
-            head = f.read(4096)
-    except OSError:
+        return read_ply_header(path).triangle_mesh_bytes()
+    except (OSError, ValueError):
         return None
-    end = head.find(b"end_header\n")
-    if end < 0 or not head.startswith(b"ply"):
-        return None
-    size, counts, per_element = end + len(b"end_header\n"), {}, {}
-    element = None
-    for line in head[:end].decode("ascii", "replace").splitlines():
-        words = line.split()
-        if words[:1] == ["element"] and len(words) == 3:
-            element = words[1]
-            counts[element], per_element[element] = int(words[2]), 0
-        elif words[:1] == ["property"] and element is not None:
-            if words[1] == "list":  # count type, then (triangles) 3 items
-                per_element[element] += _PLY_BYTES[words[2]] + 3 * _PLY_BYTES[words[3]]
-            else:
-                per_element[element] += _PLY_BYTES[words[1]]
-    return size + sum(counts[e] * per_element[e] for e in counts)

@@ -191,12 +191,10 @@ def _check_metrics(path: Path) -> None:
 
 
 def discard_unfinished(run_dir: Path) -> None:
-    """Remove what a run that stopped before its first checkpoint left (``config.yaml``, spilled
-    submaps): nothing of it can be resumed, and a corrected run must find the folder free."""
-    for name in (CONFIG_FILE,):
-        (run_dir / name).unlink(missing_ok=True)
-    for name in WORK_DIRS:
-        shutil.rmtree(run_dir / name, ignore_errors=True)
+    """Remove what a run that stopped without a checkpoint left (``config.yaml``, spilled
+    submaps, or the results it could not finish writing): nothing of it can be resumed, and a
+    corrected run must find the folder free."""
+    clear_run_dir(run_dir)
 
 
 def submaps_dir(run_dir: str | Path) -> Path:

@@ -33,7 +33,10 @@ from slam.run_folder.tracking_csv import read_tracking_csv
 from slam.trajectory import Trajectory, read_tum
 
 if TYPE_CHECKING:
+    import open3d as o3d
+
     from slam.config import SlamConfig
+    from slam.mapping.ply import PlyHeader
     from slam.records import TrackingStatus
 
 __all__ = ["RunFolder", "same_trajectory"]
@@ -207,6 +210,25 @@ class RunFolder:
         """``mesh.ply`` (``None`` when absent: an empty map, or ``output.save_mesh`` off)."""
         return self.file(MESH_FILE) if self.has(MESH_FILE) else None
 
+    def mesh(self) -> o3d.geometry.TriangleMesh | None:
+        """``mesh.ply`` read (``None`` when absent); a RunFolderError when the file is cut
+        short or its header declares more than it holds."""
+        path = self.mesh_path()
+        if path is None:
+            return None
+        import open3d as o3d
+
+        header = _mesh_header(path)
+        mesh = o3d.io.read_triangle_mesh(str(path))
+        got = (len(mesh.vertices), len(mesh.triangles))
+        want = (header.count("vertex"), header.count("face"))
+        if got != want:
+            raise RunFolderError(
+                f"{path}: {got[0]} vertices and {got[1]} triangles read where its header declares "
+                f"{want[0]} and {want[1]}: cut short or damaged; run `slam run` again to write it"
+            )
+        return mesh
+
     def sequence_path(self) -> str | None:
         """The sequence folder the run was made from, as recorded: ``dataset.path`` of
         ``config.yaml``, else ``sequence`` of ``metrics.json`` (``None`` when neither names it;
@@ -237,3 +259,23 @@ class RunFolder:
         if not candidates[0].is_absolute():
             candidates.append(self.path / recorded)
         return next((c for c in candidates if c.is_dir()), None)
+
+
+def _mesh_header(path: Path) -> PlyHeader:
+    """The header of the mesh at ``path``, refused when the file holds fewer bytes than it
+    declares (a RunFolderError)."""
+    from slam.mapping.ply import read_ply_header
+
+    advice = "run `slam run` again to write it"
+    try:
+        header = read_ply_header(path)
+    except (OSError, ValueError) as exc:
+        raise RunFolderError(f"{path}: {exc}; {advice}") from exc
+    size = path.stat().st_size
+    if header.least_bytes() > size:
+        counts = ", ".join(f"{e.count} {e.name}" for e in header.elements)
+        raise RunFolderError(
+            f"{path}: its header declares {counts}, at least {header.least_bytes()} bytes, but "
+            f"the file has {size}: cut short or damaged; {advice}"
+        )
+    return header

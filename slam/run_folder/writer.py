@@ -65,7 +65,8 @@ def save_run(result: RunResult, out_dir: str | Path, overwrite: bool = False) ->
     except OSError as exc:
         raise RunFolderError(
             f"{out}: the run's results could not be written ({exc}); no {METRICS_FILE} was "
-            "written, so the folder does not pass for a complete run: free space and run again"
+            "written, so the folder does not pass for a complete run: free space, then run "
+            "again (or `slam run --resume` when the run has a checkpoint)"
         ) from exc
     return out
 

@@ -260,13 +260,11 @@ def render_run(
     when loop closure changed it), keyframes of the final trajectory (green) and accepted loop
     edges (red) into ``png``; view :func:`default_view` unless ``T_world_cam`` is given."""
     import cv2
-    import open3d as o3d
 
     run = RunFolder(run_dir)
-    mesh_path = run.mesh_path()
-    if mesh_path is None:
+    mesh = run.mesh()
+    if mesh is None:
         raise SlamError(f"{run.path}: no {MESH_FILE} to render (was output.save_mesh off?)")
-    mesh = o3d.io.read_triangle_mesh(str(mesh_path))
     traj = run.trajectory()
     ov, legend = _run_overlay(run, traj, odometry)
     T = T_world_cam if T_world_cam is not None else default_view(mesh, traj)

@@ -361,12 +361,7 @@ def _summary(run: RunFolder) -> str | None:
 
 
 def _mesh(run: RunFolder) -> o3d.geometry.TriangleMesh | None:
-    path = run.mesh_path()
-    if path is None:
-        return None
-    import open3d as o3d
-
-    return o3d.io.read_triangle_mesh(str(path))
+    return run.mesh()
 
 
 def record_run_folder(

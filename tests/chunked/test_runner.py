@@ -164,3 +164,23 @@ def test_one_chunk_replayed_is_the_sequential_run(synth_loop_320, sequential, tm
     np.testing.assert_array_equal(res.trajectory.timestamps, ref.timestamps)
     # 0.6 mm measured: the kernels' threads do not sum in a fixed order
     assert np.abs(res.trajectory.poses[:, :3, 3] - ref.poses[:, :3, 3]).max() < 2e-3
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "[" * 100000 + "]" * 100000,
+        '{"workers": "abc", "overlap": 30, "frames": [0, 1], "chunks": []}',
+        "[1, 2, 3]",
+        '{"workers": 2, "overlap": 1, "frames": [0, 1, 2, 3],'
+        ' "chunks": [{"number": 0, "start": 0, "stop": 99, "keep_stop": 2}]}',
+        '{"workers": 1, "overlap": 1, "frames": [0, 1], "chunks": [{"number": "x"}]}',
+    ],
+    ids=["nested", "workers-abc", "a-list", "chunk-past-the-frames", "chunk-fields"],
+)
+def test_a_damaged_chunk_plan_is_a_run_folder_error(tmp_path, text):
+    path = runner.plan_path(tmp_path)
+    path.parent.mkdir()
+    path.write_text(text)
+    with pytest.raises(runner.RunFolderError, match="not a readable chunk plan.*--overwrite"):
+        runner.read_plan(tmp_path)

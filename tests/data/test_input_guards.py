@@ -261,3 +261,21 @@ def test_8_bit_depth_is_named_before_the_run(tmp_path):
     seq = open_sequence(root)
     with pytest.raises(DatasetError, match="none of the first 3 frames can be read.*dtype uint8"):
         check_sequence(seq, list(range(len(seq))))
+
+
+@pytest.mark.parametrize("size", [(1, 1), (64, 24), (128, 96)])
+def test_a_colour_image_that_cannot_line_up_with_depth_is_reported_once(tmp_path, caplog, size):
+    """A 1x1 colour image was stretched to the depth's size without a word; a scaled copy of the
+    same view (twice the depth's size) still is, silently."""
+    root = write_seq(tmp_path / "s")
+    for i in range(6):
+        cv2.imwrite(str(root / "rgb" / f"{i}.png"), np.full((size[1], size[0], 3), i, np.uint8))
+    seq = open_sequence(root)
+    with caplog.at_level(logging.WARNING):
+        frames = [seq[i] for i in range(6)]
+    assert all(f.color.shape == (48, 64, 3) for f in frames)
+    warned = [r for r in caplog.records if "does not line up with depth" in r.getMessage()]
+    if size == (128, 96):
+        assert warned == []
+    else:
+        assert len(warned) == 1 and f"{size[0]}x{size[1]}" in warned[0].getMessage()

@@ -74,3 +74,25 @@ def test_results_that_cannot_be_written_are_a_clear_error(synth_loop_320, tmp_pa
     with pytest.raises(slam.RunFolderError, match=f"No space left.*no {METRICS_FILE}"):
         slam.run_sequence(synth_loop_320, tmp_path / "run", max_frames=3)
     assert not (tmp_path / "run" / METRICS_FILE).exists()
+
+
+def test_a_mesh_the_disk_cannot_take_leaves_a_folder_the_next_command_can_use(
+    synth_loop_320, tmp_path, monkeypatch, caplog
+):
+    """It left the trajectories but removed config.yaml: `slam eval` said "not a run folder",
+    --resume found no checkpoint and a rerun needed --overwrite. Without a checkpoint the
+    folder is now left free for the rerun; with one, --resume writes the results."""
+    from slam.run_folder import run_outputs
+
+    monkeypatch.setattr(tsdf, "write_mesh", _enospc)
+    with pytest.raises(slam.RunFolderError, match="No space left.*free space"):
+        slam.run_sequence(synth_loop_320, tmp_path / "run", max_frames=8)
+    assert run_outputs(tmp_path / "run") == []  # nothing a rerun must --overwrite
+    with pytest.raises(slam.RunFolderError), caplog.at_level(logging.ERROR):
+        slam.run_sequence(synth_loop_320, tmp_path / "ckpt", max_frames=12, checkpoint_every=5)
+    assert (tmp_path / "ckpt" / CHECKPOINT_DIR).is_dir()  # resumable: kept
+    monkeypatch.undo()
+    slam.run_sequence(synth_loop_320, tmp_path / "run", max_frames=3)  # no --overwrite
+    result, out = slam.resume_run(tmp_path / "ckpt")
+    assert result.metrics["frames"] == 12 and (out / METRICS_FILE).is_file()
+    assert (out / "mesh.ply").is_file() and not (out / CHECKPOINT_DIR).exists()

@@ -209,3 +209,37 @@ def test_an_empty_or_garbage_metrics_json_is_not_a_complete_run(small_run, tmp_p
     for cmd in (["eval", str(copy)], ["view", str(copy), "--image-scale", "0"]):
         res = CliRunner().invoke(app, cmd)
         assert res.exit_code == 2 and "not a run's metrics" in res.output, (cmd, res.output)
+
+
+@pytest.mark.parametrize("damage", ["cut", "huge-header", "not-ply"])
+def test_a_cut_or_overstated_mesh_is_refused_by_view_and_render(small_run, tmp_path, damage):
+    """`slam view` returned 0 on a cut mesh (only an RPly line on stderr) and on one whose
+    header declares 10^11 vertices."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from slam.cli import app
+    from slam.run_folder import MESH_FILE
+    from slam.tools.render import render_run
+
+    _, _, run_dir = small_run
+    assert len(RunFolder(run_dir).mesh().vertices) > 0  # the whole file reads
+    copy = Path(shutil.copytree(run_dir, tmp_path / "copy"))
+    mesh = copy / MESH_FILE
+    data = mesh.read_bytes()
+    if damage == "cut":
+        mesh.write_bytes(data[: len(data) * 2 // 3])
+    elif damage == "huge-header":
+        head, body = data.split(b"end_header\n", 1)
+        lines = [b"element vertex 100000000000" if ln.startswith(b"element vertex") else ln
+                 for ln in head.split(b"\n")]  # fmt: skip
+        mesh.write_bytes(b"\n".join(lines) + b"end_header\n" + body)
+    else:
+        mesh.write_bytes(b"solid cube\nendsolid\n")
+    with pytest.raises(RunFolderError, match="PLY|cut short"):
+        RunFolder(copy).mesh()
+    with pytest.raises(RunFolderError):
+        render_run(copy, tmp_path / "view.png")
+    res = CliRunner().invoke(app, ["view", str(copy), "--image-scale", "0"])
+    assert res.exit_code == 2 and str(mesh) in res.output.replace("\n", ""), res.output
