@@ -23,7 +23,7 @@ from slam.errors import FrameReadError, RunFolderError, RunInterrupted, SlamErro
 from slam.records import TrackingStatus
 from slam.results import RunResult
 from slam.run_folder import submaps_dir
-from slam.run_folder.checkpoint import read_checkpoint, write_checkpoint
+from slam.run_folder.checkpoint import CheckpointError, read_checkpoint, write_checkpoint
 from slam.system import FrameResult, Slam
 from slam.trajectory import Trajectory, as_written
 
@@ -304,13 +304,15 @@ def _resume(
     ``total``; a position the state does not hold is refused), and the checkpoint interval to
     go on with (the interrupted run's when none is given)."""
     state, start = read_checkpoint(run_dir)
-    if checkpoint_every is None:
-        every = state.get("checkpoint_every", 0)
-        checkpoint_every = None if every is None or every < 0 else int(every)
     try:
+        if checkpoint_every is None:
+            every = state.get("checkpoint_every", 0)
+            checkpoint_every = None if every is None or every < 0 else int(every)
         system.load_state_dict(state)
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise RunFolderError(
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError,
+            RuntimeError) as exc:  # fmt: skip
+        # RuntimeError: Open3D refusing arrays of the wrong shape
+        raise CheckpointError(
             f"{run_dir}: the checkpoint does not hold a complete state of this version "
             f"({type(exc).__name__}: {exc}); start the run again with --overwrite"
         ) from exc

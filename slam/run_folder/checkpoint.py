@@ -21,6 +21,12 @@ current directory; a name that leaves the folder is refused).
 The state goes through :mod:`slam.run_folder.codec` (plain data only: anything else is refused
 when the checkpoint is *written*, naming where in the state it sits).
 
+Each file's SHA-256 is in ``state.json`` (``digests``) and ``state.json``'s own, over the rest
+of it, in its ``digest``: a checkpoint damaged after it was written (a disk error, a file cut
+short, an edit) is refused as a whole when it is read, before any of it is used. (Whoever
+rewrites the digests as well can make a checkpoint that loads and ends the run in an error; it
+still cannot run code.)
+
 A checkpoint is replaced atomically: new files first (each fsynced, written under a temporary
 name and renamed), then ``state.json`` by rename, then files the new state does not name are
 removed, so a kill at any moment leaves the previous checkpoint or the new one, whole.
@@ -28,6 +34,7 @@ removed, so a kill at any moment leaves the previous checkpoint or the new one, 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
@@ -47,7 +54,7 @@ log = logging.getLogger(__name__)
 
 STATE_FILE = "state.json"
 FORMAT_NAME = "slam-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the digests
 #: the state file of checkpoints written before the format had a name and version (pickles)
 OLD_STATE_FILE = "state.pkl"
 
@@ -96,6 +103,19 @@ def _write_via_tmp(path: Path, write: Any) -> None:
 
 def _json(tree: Any) -> bytes:
     return json.dumps(tree, separators=(",", ":")).encode()
+
+
+def _file_digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _header_digest(header: Mapping[str, Any]) -> str:
+    """The SHA-256 of ``state.json`` without its ``digest`` entry, as :func:`_json` writes it."""
+    return hashlib.sha256(_json({k: v for k, v in header.items() if k != "digest"})).hexdigest()
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
@@ -208,11 +228,32 @@ def _read_header(folder: Path) -> dict[str, Any]:
             f"{path}: checkpoint format version {version!r}, this version of the package reads "
             f"version {FORMAT_VERSION} only; {_RESTART}"
         )
+    try:
+        same = header.get("digest") == _header_digest(header)
+    except (TypeError, ValueError, RecursionError):
+        same = False
+    if not same:
+        raise CheckpointError(
+            f"{path}: damaged checkpoint (its digest does not match its contents: it changed "
+            f"after it was written); {_RESTART}"
+        )
     return header
 
 
+def _verified(folder: Path, header: dict[str, Any], name: str) -> Path:
+    """``folder / name`` when its SHA-256 is the one ``state.json`` recorded."""
+    path = folder / name
+    digests = header.get("digests")
+    if not isinstance(digests, dict) or digests.get(name) != _file_digest(path):
+        raise CheckpointError(
+            f"{path}: damaged checkpoint (the file's SHA-256 is not the one {STATE_FILE} "
+            f"recorded: it changed after it was written); {_RESTART}"
+        )
+    return path
+
+
 #: what this process last wrote to each checkpoint folder (saves re-reading state.json)
-_written: dict[Path, tuple[tuple[int, int, int], int, frozenset[str]]] = {}
+_written: dict[Path, tuple[tuple[int, int, int], int, dict[str, str]]] = {}
 
 
 def _stat_key(path: Path) -> tuple[int, int, int]:
@@ -220,20 +261,23 @@ def _stat_key(path: Path) -> tuple[int, int, int]:
     return st.st_ino, st.st_size, st.st_mtime_ns
 
 
-def _previous(folder: Path) -> tuple[int, frozenset[str]]:
-    """The serial for the next checkpoint and the keyframe files the current one names."""
+def _previous(folder: Path) -> tuple[int, dict[str, str]]:
+    """The serial for the next checkpoint and the keyframe files the current one names, with
+    their digests."""
     path = folder / STATE_FILE
     if not path.is_file():
-        return 0, frozenset()
+        return 0, {}
     mine = _written.get(folder.resolve())
     if mine is not None and mine[0] == _stat_key(path):
         return mine[1] + 1, mine[2]
     try:
         header = _read_header(folder)
-        return int(header["serial"]) + 1, frozenset(map(str, header["state"]["keyframes"]))
+        digests = header["digests"]
+        kf = {str(n): str(digests[n]) for n in header["state"]["keyframes"]}
+        return int(header["serial"]) + 1, kf
     except (CheckpointError, KeyError, TypeError, ValueError) as exc:
         log.warning("%s: replacing an unreadable checkpoint (%s)", folder, exc)
-        return 0, frozenset()
+        return 0, {}
 
 
 def write_checkpoint(
@@ -275,6 +319,22 @@ def write_checkpoint(
     core = {**state, "keyframes": kf_files, "model": {**state["model"], "submaps": submaps}}
     tree, arrays = encode(core, "state")
     arrays_file = f"state_{serial}.npz"
+
+    # new files (each with its digest), then the state document by rename, then what the new
+    # state does not name
+    digests = {}
+    for i, (kf, name) in enumerate(zip(keyframes, kf_files, strict=True)):
+        if name not in committed or not (folder / name).is_file():
+            _write_document(folder / name, kf, f"state.keyframes[{i}]")
+            digests[name] = _file_digest(folder / name)
+        else:
+            digests[name] = committed[name]
+    for name, volume in volumes.items():
+        _write_npz(folder / name, volume)
+        digests[name] = _file_digest(folder / name)
+    _write_npz(folder / arrays_file, arrays)
+    digests[arrays_file] = _file_digest(folder / arrays_file)
+    _fsync_dir(folder)
     header = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
@@ -283,20 +343,14 @@ def write_checkpoint(
         "checkpoint_every": int(every),
         "arrays": arrays_file,
         "state": tree,
+        "digests": digests,
     }
+    header["digest"] = _header_digest(header)
     document = _json(header)
-
-    # new files, then the state document by rename, then what the new state does not name
-    for i, (kf, name) in enumerate(zip(keyframes, kf_files, strict=True)):
-        if name not in committed or not (folder / name).is_file():
-            _write_document(folder / name, kf, f"state.keyframes[{i}]")
-    for name, volume in volumes.items():
-        _write_npz(folder / name, volume)
-    _write_npz(folder / arrays_file, arrays)
-    _fsync_dir(folder)
     _write_bytes(folder / STATE_FILE, document)
     _fsync_dir(folder)
-    _written[folder.resolve()] = (_stat_key(folder / STATE_FILE), serial, frozenset(kf_files))
+    kf_digests = {n: digests[n] for n in kf_files}
+    _written[folder.resolve()] = (_stat_key(folder / STATE_FILE), serial, kf_digests)
     keep = {arrays_file, *kf_files, *volumes}
     for p in folder.iterdir():
         stale = any(pat.fullmatch(p.name) for pat in _OURS) and p.name not in keep
@@ -341,6 +395,7 @@ def read_checkpoint(run_dir: str | Path) -> tuple[dict[str, Any], int]:
     try:
         current = folder / _own_name(header["arrays"], _STATE_ARRAYS, "arrays")
         _inside(run_dir, current, "the state's arrays")
+        _verified(folder, header, current.name)
         core = decode(header["state"], _read_npz(current))
         if not isinstance(core, dict) or not isinstance(core.get("model"), dict):
             raise ValueError("the state is not a dict with a model")
@@ -348,6 +403,7 @@ def read_checkpoint(run_dir: str | Path) -> tuple[dict[str, Any], int]:
         for name in _list(core["keyframes"]):
             current = folder / _own_name(name, _KEYFRAME, "keyframes")
             _inside(run_dir, current, "a keyframe file")
+            _verified(folder, header, current.name)
             kf = _read_document(current)
             if not isinstance(kf, dict):
                 raise ValueError("a keyframe is not a dict")
@@ -358,6 +414,7 @@ def read_checkpoint(run_dir: str | Path) -> tuple[dict[str, Any], int]:
             sm = dict(sm)
             if sm["volume"] is not None:
                 current = folder / _own_name(sm["volume"], _VOLUME, f"submap {j} volume")
+                _verified(folder, header, current.name)
                 sm["volume"] = _read_npz(current)
                 current = folder / STATE_FILE
             if sm.get("path") is not None:

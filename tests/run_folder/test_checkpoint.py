@@ -29,6 +29,7 @@ from slam.loops.verification import Verification
 from slam.run_folder import checkpoint as ck
 from slam.run_folder import submaps_dir
 from slam.run_folder.checkpoint import (
+    FORMAT_VERSION,
     CheckpointError,
     has_checkpoint,
     read_checkpoint,
@@ -287,7 +288,7 @@ def interrupted(synth_loop_320, tmp_path_factory) -> Path:
     """A run folder stopped after its checkpoint at frame 40, with a spilled submap."""
     run = _interrupted_run(synth_loop_320, tmp_path_factory.mktemp("interrupted"), "run")
     header = json.loads((run / "checkpoint" / "state.json").read_text())
-    assert header["format"] == "slam-checkpoint" and header["version"] == 1
+    assert header["format"] == "slam-checkpoint" and header["version"] == FORMAT_VERSION
     assert header["position"] == 40
     paths = [sm["path"] for sm in header["state"]["model"]["submaps"] if sm["path"]]
     assert paths and all(p.startswith("submaps/submap_") for p in paths), paths
@@ -362,9 +363,12 @@ def test_a_write_killed_midway_leaves_the_previous_checkpoint(run, monkeypatch):
 
 
 def _doctor(run: Path, edit) -> None:
+    """Edit state.json and write its digest again, as a forger would: what the reader checks
+    behind the digest."""
     path = run / "checkpoint" / "state.json"
     header = json.loads(path.read_text())
     edit(header)
+    header["digest"] = ck._header_digest(header)
     path.write_text(json.dumps(header))
 
 
@@ -456,7 +460,7 @@ def test_a_doctored_checkpoint_cannot_run_code(run, tmp_path, how):
         (lambda h: h.update(format="something-else"), "format 'something-else'"),
         (lambda h: h.pop("format"), "format None"),
         (lambda h: h.update(version=0), "format version 0"),
-        (lambda h: h.update(version=2), "format version 2"),
+        (lambda h: h.update(version=FORMAT_VERSION + 1), f"format version {FORMAT_VERSION + 1}"),
         (lambda h: h["state"].update(tracker={"$t": "nd", "key": "a999999"}), "a999999"),
         (lambda h: h["state"].update(tracker={"$t": "pickle", "data": "x"}), "'pickle'"),
         (lambda h: h["state"].update(x={"$t": "np", "dtype": "O", "value": 1}), "'O'"),
