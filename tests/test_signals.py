@@ -134,3 +134,38 @@ def test_a_signal_while_a_finished_run_is_written_lets_the_files_finish(
     assert (run_dir / METRICS_FILE).is_file() and not (run_dir / LOCK_FILE).exists()
     assert "SIGINT: the run is finished; writing its results first" in caplog.text
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+
+
+@pytest.mark.slow
+def test_the_largest_counts_a_config_accepts_still_stop_on_sigterm(synth_loop_320, tmp_path):
+    """`tracking.iterations: [1e9, 1e9, 1e9]` made one frame last hours, and SIGTERM (twice)
+    was ignored for 14 minutes. With the counts at their largest accepted values, a SIGTERM
+    stops the run after the frame it is on, and a second one at once."""
+    import subprocess
+    import sys
+    import time
+
+    from slam.config_ranges import MAX_GN_ITERATIONS, MAX_RANSAC_ITERATIONS
+
+    cfg = tmp_path / "max.yaml"
+    most = [MAX_GN_ITERATIONS] * 3
+    cfg.write_text(
+        f"tracking:\n  iterations: {most}\n  large_motion_iterations: {most}\n"
+        f"  ransac: {{iterations: {MAX_RANSAC_ITERATIONS}}}\n"
+    )
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "slam", "run", str(synth_loop_320), "--out", str(out), "-q",
+           "-c", str(cfg), "--max-frames", "100"]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 120
+    while not (out / "config.yaml").exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(3.0)  # inside the frame loop
+    proc.send_signal(signal.SIGTERM)
+    try:  # after the frame it is on: well within a minute
+        text, _ = proc.communicate(timeout=60)
+        assert proc.returncode == 128 + signal.SIGTERM and "Traceback" not in text, text
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGTERM)  # a second one stops it at once
+        proc.communicate(timeout=10)
+        pytest.fail("one SIGTERM did not stop the run within a minute")
