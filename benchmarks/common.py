@@ -13,7 +13,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "datasets"
-RESULTS = ROOT / "benchmarks" / "results"
+#: where results are written (``SLAM_BENCH_RESULTS`` overrides it: the smoke tests)
+RESULTS = Path(os.environ.get("SLAM_BENCH_RESULTS") or ROOT / "benchmarks" / "results")
 
 
 def sequence_path(name: str) -> Path:

@@ -29,6 +29,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 from common import ROOT, machine, sequence_path, write_result
 
@@ -119,7 +120,7 @@ def main() -> None:
         res = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
         rows[str(threads)] = json.loads(res.stdout.strip().splitlines()[-1])
     out = {"sequence": args.sequence, "reps": args.reps, "floors_ms": rows, "machine": machine()}
-    path = write_result(f"kernel-floors-{args.sequence}", out)
+    path = write_result(f"kernel-floors-{Path(args.sequence).name}", out)
     print(f"wrote {path}")
     for threads, by_res in rows.items():
         for ds, r in by_res.items():

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 import open3d as o3d
@@ -76,7 +77,7 @@ def main() -> None:
         "open3d": o3d.__version__,
         "machine": machine(),
     }
-    out = write_result(f"open3d-{args.sequence}", data)
+    out = write_result(f"open3d-{Path(args.sequence).name}", data)
     print(f"{out}: ATE {ate:.4f} m, {data['fps']:.2f} fps, peak {data['peak_rss_mb']:.0f} MB")
 
 
