@@ -146,13 +146,13 @@ class Slam:
         )  # fmt: skip
         t = cfg.tracking
         relocaliser = Relocaliser(
-            self.closer.verifier, self.closer.database, t.relocalisation_candidates,
-            cfg.loop.exclude_recent_keyframes, t.hypothesis_overlap, t.depth_max_m,
+            self.closer.verifier, self.closer.database, t.recovery.relocalisation_candidates,
+            cfg.loop.exclude_recent_keyframes, t.motion.hypothesis_overlap, t.depth_max_m,
         )  # fmt: skip
         self.recovery = LossRecovery(
             t, self.tracker, self.model, relocaliser, cfg.backend.loop_sigma_m
         )
-        self.clock = FrameClock(t.gap_factor)
+        self.clock = FrameClock(t.motion.gap_factor)
         self.frames = FrameLog()  # the frames with a pose
         self.kf_rows: list[int] = []  # row of each keyframe in ``frames``
         self.statuses: list[TrackingStatus] = []  # every frame stepped

@@ -46,13 +46,13 @@ def test_missing_file(tmp_path):
         ({"mapping": {"voxel_size_m": 0}}, r"'mapping.voxel_size_m' must be in \(0, 0.02\] .*got 0"),
         ({"mapping": {"voxel_size_m": -0.01}}, r"'mapping.voxel_size_m' must be in \(0, 0.02\]"),
         ({"tracking": {"depth_max_m": -1}}, r"'tracking.depth_max_m' must be > tracking.depth_min_m"),
-        ({"tracking": {"iterations": []}}, r"'tracking.iterations' must be a non-empty list"),
-        ({"tracking": {"iterations": [0, 0]}}, r"'tracking.iterations' must be counts in \[0, 100\]"),
-        ({"tracking": {"iterations": [4, 2]}}, r"'tracking.large_motion_iterations' must be one count per level of tracking.iterations \(2 levels\)"),
+        ({"tracking": {"icp": {"iterations": []}}}, r"'tracking.icp.iterations' must be a non-empty list"),
+        ({"tracking": {"icp": {"iterations": [0, 0]}}}, r"'tracking.icp.iterations' must be counts in \[0, 100\]"),
+        ({"tracking": {"icp": {"iterations": [4, 2]}}}, r"'tracking.icp.large_motion_iterations' must be one count per level of tracking.icp.iterations \(2 levels\)"),
         ({"dataset": {"stride": 0}}, r"'dataset.stride' must be >= 1"),
         ({"dataset": {"max_frames": 0}}, r"'dataset.max_frames' must be >= 1"),
         ({"backend": {"loop_kernel": "tukey"}}, r"'backend.loop_kernel' must be cauchy, huber"),
-        ({"tracking": {"min_overlap": 2}}, r"'tracking.min_overlap' must be in \[0, 1\]"),
+        ({"tracking": {"icp": {"min_overlap": 2}}}, r"'tracking.icp.min_overlap' must be in \[0, 1\]"),
     ],
 )
 def test_out_of_range_values_name_the_key(data, match):
@@ -91,3 +91,20 @@ def test_every_yaml_the_project_ships_loads():
         load_config(path)
     for path in suites:
         load_suite(path)
+
+
+def test_a_tracking_key_written_before_the_sub_sections_is_read_from_its_new_place(caplog):
+    """`tracking.max_correspondence_m` is `tracking.icp.max_correspondence_m` now: an older file
+    (a run folder's config.yaml) still loads, with a warning naming the new key; one key given
+    in both places is an error."""
+    import logging
+
+    with caplog.at_level(logging.WARNING):
+        cfg = config_from_dict({"tracking": {"max_correspondence_m": 0.05, "gap_factor": 3.0,
+                                             "downsample": 1, "ransac": {"iterations": 50}}})  # fmt: skip
+    assert cfg.tracking.icp.max_correspondence_m == 0.05 and cfg.tracking.motion.gap_factor == 3.0
+    assert cfg.tracking.downsample == 1 and cfg.tracking.ransac.iterations == 50
+    assert "'tracking.max_correspondence_m' is now 'tracking.icp.max_correspondence_m'" in caplog.text
+    with pytest.raises(ConfigError, match="max_correspondence_m.*belongs in section 'tracking.icp'"):
+        config_from_dict({"tracking": {"max_correspondence_m": 0.05,
+                                       "icp": {"max_correspondence_m": 0.04}}})  # fmt: skip

@@ -58,8 +58,8 @@ def test_non_finite_values_set_in_code_are_refused_by_the_slam():
     import slam
 
     cfg = SlamConfig()
-    cfg.tracking.max_correspondence_m = float("nan")
-    with pytest.raises(ConfigError, match="'tracking.max_correspondence_m' must be a finite"):
+    cfg.tracking.icp.max_correspondence_m = float("nan")
+    with pytest.raises(ConfigError, match="'tracking.icp.max_correspondence_m' must be a finite"):
         slam.Slam(cfg)
 
 
@@ -73,7 +73,7 @@ def test_yaml_inf_and_nan(tmp_path):
     with pytest.raises(ConfigError, match="'tracking.downsample' must be an integer, got nan"):
         load_config(p)
     p.write_text("tracking:\n  iterations: [4, .inf]\n")
-    with pytest.raises(ConfigError, match="'tracking.iterations' must be an integer, got inf"):
+    with pytest.raises(ConfigError, match="'tracking.icp.iterations' must be an integer, got inf"):
         load_config(p)
     p.write_text("dataset:\n  calibration: {fx: .nan}\n")
     with pytest.raises(ConfigError, match="'dataset.calibration.fx' must be a finite number"):
@@ -109,8 +109,8 @@ def test_the_bound_is_on_the_block_edge():
 @pytest.mark.parametrize(
     "key, value",
     [
-        ("tracking.iterations", [1_000_000_000, 1_000_000_000, 1_000_000_000]),
-        ("tracking.large_motion_iterations", [12, 8, 101]),
+        ("tracking.icp.iterations", [1_000_000_000, 1_000_000_000, 1_000_000_000]),
+        ("tracking.icp.large_motion_iterations", [12, 8, 101]),
         ("tracking.ransac.iterations", 1_000_000_000),
         ("loop.ransac_iterations", 1_000_000),
         ("backend.max_iterations", 10**9),

@@ -36,7 +36,7 @@ def test_blackout_frames_are_lost_and_tracking_comes_back(synth_loop_320, tmp_pa
     _, res = run_damaged(synth_loop_320, tmp_path, Damage(blackout=blackout))
     m = res.metrics
     assert set(blackout) <= set(m["lost_frames"])
-    assert len(m["lost_frames"]) <= len(blackout) + slam.SlamConfig().tracking.new_segment_after_lost
+    assert len(m["lost_frames"]) <= len(blackout) + slam.SlamConfig().tracking.recovery.new_segment_after_lost
     assert not set(blackout) & set(np.round(res.trajectory.timestamps * 30).astype(int))
     assert len(m["map_segments"]) == 1  # one map in the end: relocalised or joined
     assert m["relocalisations"] + len(m["segment_joins"]) >= 1
@@ -90,7 +90,7 @@ def test_jump_into_unmapped_space_starts_a_segment_joined_at_the_revisit(
     m = res.metrics
     assert len(m["segment_joins"]) == 1, m["segment_joins"]
     assert len(m["map_segments"]) == 1 and m["map_segments"][0]["segments"] == [0, 1]
-    n_lost = slam.SlamConfig().tracking.new_segment_after_lost - 1
+    n_lost = slam.SlamConfig().tracking.recovery.new_segment_after_lost - 1
     assert m["lost_frames"] == list(range(100, 100 + n_lost))
     assert m["frames_in_trajectory"] == 200 - n_lost
     # odometry alone cannot place the second segment; the joined trajectory can

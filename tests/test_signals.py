@@ -142,7 +142,7 @@ def test_a_signal_while_a_finished_run_is_written_lets_the_files_finish(
 
 @pytest.mark.slow
 def test_the_largest_counts_a_config_accepts_still_stop_on_sigterm(synth_loop_320, tmp_path):
-    """`tracking.iterations: [1e9, 1e9, 1e9]` made one frame last hours, and SIGTERM (twice)
+    """`tracking.icp.iterations: [1e9, 1e9, 1e9]` made one frame last hours, and SIGTERM (twice)
     was ignored for 14 minutes. With the counts at their largest accepted values, a SIGTERM
     stops the run after the frame it is on, and a second one at once."""
     import subprocess
@@ -154,7 +154,7 @@ def test_the_largest_counts_a_config_accepts_still_stop_on_sigterm(synth_loop_32
     cfg = tmp_path / "max.yaml"
     most = [MAX_GN_ITERATIONS] * 3
     cfg.write_text(
-        f"tracking:\n  iterations: {most}\n  large_motion_iterations: {most}\n"
+        f"tracking:\n  icp: {{iterations: {most}, large_motion_iterations: {most}}}\n"
         f"  ransac: {{iterations: {MAX_RANSAC_ITERATIONS}}}\n"
     )
     out = tmp_path / "run"

@@ -56,7 +56,7 @@ class Attempt:
     prev_depth: np.ndarray | list[np.ndarray] | None = None
     prev_frame: PreparedFrame | None = None  # the previous frame (its colour, on demand)
     # the images (depth + grey pyramids) and poses whose colour model alignments warp into the
-    # model's view and average (the last keyframes': tracking.photometric_reference); empty:
+    # model's view and average (the last keyframes': tracking.colour.photometric_reference); empty:
     # the model's own colour
     references: list[tuple[RgbdImage, np.ndarray]] = field(default_factory=list)
     feats: FeatureSet | None = None  # the frame's ORB features, once a stage used them
@@ -69,12 +69,12 @@ class Attempt:
     # colour joins depth in every alignment of this attempt (weight of the photometric term;
     # 0: depth alone)
     photometric: float = 0.0
-    # ICP iterations per level of this attempt's alignments (None: tracking.iterations; a
-    # large or unknown motion: tracking.large_motion_iterations)
+    # ICP iterations per level of this attempt's alignments (None: tracking.icp.iterations; a
+    # large or unknown motion: tracking.icp.large_motion_iterations)
     iterations: list[int] | None = None
     # the last frame-to-frame estimate of T_prev_cur by depth alone that was accepted
     f2f: np.ndarray | None = None
-    # the estimate before tracking.colour_step_weight moved it (depth against the model)
+    # the estimate before tracking.colour.colour_step_weight moved it (depth against the model)
     T_world_depth: np.ndarray | None = None
     # a photometric alignment can reach the frame's pose (no fast motion, no gap before it)
     colour_reach: bool = True
@@ -93,7 +93,7 @@ class Attempt:
     def passes(self, cfg: TrackingConfig) -> bool:
         """The estimate overlaps the model and ICP found enough correspondences."""
         assert self.icp is not None
-        return self.overlap >= cfg.min_overlap and self.icp.fitness >= cfg.min_fitness
+        return self.overlap >= cfg.icp.min_overlap and self.icp.fitness >= cfg.icp.min_fitness
 
     def features(self) -> FeatureSet | None:
         """The frame's features, from now on used by this attempt (None without colour)."""
@@ -155,7 +155,7 @@ def joint_weight(cfg: TrackingConfig, att: Attempt) -> float | None:
     """The photometric weight of this attempt's alignments, None for depth alone (or when the
     frame has no registered colour)."""
     weight = att.photometric
-    if weight <= 0 or att.frame.photometric_image(len(cfg.iterations)) is None:
+    if weight <= 0 or att.frame.photometric_image(len(cfg.icp.iterations)) is None:
         return None
     return weight
 
@@ -168,7 +168,7 @@ def colour_prefers(cfg: TrackingConfig, att: Attempt, steps: list[np.ndarray]) -
     images do not overlap. A comparison of hypotheses: a few milliseconds, where aligning
     with colour costs a hundred."""
     prev = att.prev_frame
-    levels = len(cfg.iterations)
+    levels = len(cfg.icp.iterations)
     image = att.frame.photometric_image(levels)
     prev_image = None if prev is None else prev.photometric_image(levels)
     if prev is None or image is None or prev_image is None:
@@ -177,7 +177,7 @@ def colour_prefers(cfg: TrackingConfig, att: Attempt, steps: list[np.ndarray]) -
     poses = [(T, colour_pose(T, att.frame.T_depth_colour, prev.T_depth_colour)) for T in steps]
     costs = photometric_costs(
         image.source(level), prev_image.target(level, geometry=False), prev_image.K[level],
-        poses, cfg.max_correspondence_m * cfg.coarse_correspondence_factor**level,
+        poses, cfg.icp.max_correspondence_m * cfg.icp.coarse_correspondence_factor**level,
     )  # fmt: skip
     if not np.isfinite(min(costs)):
         return None
@@ -207,24 +207,24 @@ def align_to_model(
         # the references' real images seen from the guess, through the model's depth: a
         # TSDF's own colour is smeared along the rays it was fused from (unseen pixels: NaN)
         grey_ref = mean_warped_intensity(
-            render.depth_m, p.K_track, T_world_guess, refs, cfg.max_correspondence_m
+            render.depth_m, p.K_track, T_world_guess, refs, cfg.icp.max_correspondence_m
         )
-        target = RgbdImage(render.depth_m, grey_ref, p.K_track, len(cfg.iterations))
+        target = RgbdImage(render.depth_m, grey_ref, p.K_track, len(cfg.icp.iterations))
         icp = p.joint_to(target, np.eye(4), cfg, joint, iterations=att.iterations)
     elif joint is not None and render.color is not None:
-        target = RgbdImage(render.depth_m, grey(render.color), p.K_track, len(cfg.iterations))
+        target = RgbdImage(render.depth_m, grey(render.color), p.K_track, len(cfg.icp.iterations))
         icp = p.joint_to(target, np.eye(4), cfg, joint, iterations=att.iterations)
     else:
         icp = p.icp_to(render.depth_m, np.eye(4), cfg, att.iterations)
     step = icp.T_target_source
     if trusted and (
-        translation_norm(step) > cfg.max_model_correction_m
-        or rotation_angle_deg(step) > cfg.max_model_correction_deg
+        translation_norm(step) > cfg.icp.max_model_correction_m
+        or rotation_angle_deg(step) > cfg.icp.max_model_correction_deg
     ):
         step = np.eye(4)
         att.status.model_rejected = True
     score, rmse = projective_agreement(
-        p.depth_m, render.depth_m, p.K_track, step, cfg.inlier_threshold_m,
+        p.depth_m, render.depth_m, p.K_track, step, cfg.icp.inlier_threshold_m,
         noise=depth_noise(cfg), source_max_m=model.depth_max_m,
     )  # fmt: skip
     # the ICP's residual as measured against the model, in metres (Open3D's inlier_rmse is
@@ -253,7 +253,7 @@ def align_from(
         joint = joint_weight(cfg, att) if att.photometric > 0 else None
         prev = None  # the previous frame's grey pyramids, built only when colour joins depth
         if joint is not None and att.prev_frame is not None:
-            prev = att.prev_frame.photometric_image(len(cfg.iterations))
+            prev = att.prev_frame.photometric_image(len(cfg.icp.iterations))
         if joint is not None and prev is not None:
             assert att.prev_frame is not None
             f2f = p.joint_to(
@@ -263,9 +263,9 @@ def align_from(
             f2f = p.icp_to(att.prev_depth, T_prev_cur, cfg, att.iterations)
         att.status.f2f_fitness = round(float(f2f.fitness), 4)
         if (
-            f2f.fitness >= cfg.min_fitness
+            f2f.fitness >= cfg.icp.min_fitness
             and translation_norm(inv_T(T_prev_cur) @ f2f.T_target_source)
-            <= cfg.max_step_translation_m
+            <= cfg.icp.max_step_translation_m
             and not _contradicted(att, evidence, T_prev_cur, f2f.T_target_source)
         ):
             T_prev_cur = f2f.T_target_source
@@ -276,8 +276,8 @@ def align_from(
     for T_done in att.tried:
         d = inv_T(T_done) @ T_world_guess
         if (
-            translation_norm(d) < cfg.same_start_translation_m
-            and rotation_angle_deg(d) < cfg.same_start_rotation_deg
+            translation_norm(d) < cfg.icp.same_start_translation_m
+            and rotation_angle_deg(d) < cfg.icp.same_start_rotation_deg
         ):
             return None
     att.tried.append(T_world_guess)

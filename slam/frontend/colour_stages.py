@@ -49,7 +49,7 @@ def check_motion(
     cheapest, and colour's estimate is kept only when it departs less than depth's. Every
     frame's departure, of the estimate kept, joins the pattern (:attr:`Attempt.acceleration`),
     a frame aligned with colour already (its depth blind) too, unchecked."""
-    if not (att.ok and cfg.motion_check_photometric_weight > 0):
+    if not (att.ok and cfg.colour.motion_check_photometric_weight > 0):
         return
     if not state.velocity_known:  # no motion pattern to break yet
         return
@@ -59,11 +59,11 @@ def check_motion(
     att.acceleration = departure / att.dt_s**2
     if att.photometric != 0:  # aligned with colour already (depth was blind): kept as it is
         return
-    bound = cfg.max_acceleration_m_s2 * att.dt_s**2
+    bound = cfg.motion.max_acceleration_m_s2 * att.dt_s**2
     what = _breaks_pattern(cfg, state, att, departure, bound)
     if what is None:
         return
-    if att.frame.photometric_image(len(cfg.iterations)) is None:
+    if att.frame.photometric_image(len(cfg.icp.iterations)) is None:
         _warn_unconfirmed(att, what, bound, "there is no registered colour to check it")
         return
     # a step only unusual for this recording: kept on depth where the images agree with it
@@ -83,7 +83,7 @@ def _breaks_pattern(
         return f"its step departs {cm:.1f} cm from the constant-velocity prediction"
     usual = usual_departure(cfg, state.recent_accelerations, att.dt_s)
     if departure > usual:
-        times = departure / usual * cfg.unusual_departure_factor
+        times = departure / usual * cfg.motion.unusual_departure_factor
         return (
             f"its step departs {cm:.1f} cm from the constant-velocity prediction, "
             f"{times:.1f} times the recent frames' median"
@@ -102,7 +102,7 @@ def _align_with_colour(
     """:func:`check_motion`'s second alignment, with colour, from the prediction
     (``prediction``: the predicted pose, depth's departure from it and the bound)."""
     predicted, departure, bound = prediction
-    att.photometric = cfg.motion_check_photometric_weight
+    att.photometric = cfg.colour.motion_check_photometric_weight
     att.tried = []
     estimate = align_from(cfg, att, model, att.velocity, False)
     assert estimate is not None  # nothing was tried since the list was emptied
@@ -111,7 +111,7 @@ def _align_with_colour(
     if unusual_only and colour_departure >= departure:
         att.photometric = 0.0
         return
-    if score2 >= cfg.min_overlap and icp2.fitness >= cfg.min_fitness:
+    if score2 >= cfg.icp.min_overlap and icp2.fitness >= cfg.icp.min_fitness:
         att.keep(T2, icp2, score2)
         att.status.photometric = True
         # the motion pattern is the estimates kept (a slide colour undid is not part of it)
@@ -161,7 +161,7 @@ def colour_first_step(
         )  # the restart keyframe, as its depth camera saw it
         if kf is not None and kf.index == prev.index and prev.features is not None:
             kf.features = prev.features
-        image = prev.photometric_image(len(cfg.iterations))
+        image = prev.photometric_image(len(cfg.icp.iterations))
         T_colour = att.T_world_prev @ prev.T_depth_colour
         att.references = [(im, T_colour if im is image else T) for im, T in att.references]
         state.references = list(att.references)
@@ -171,12 +171,12 @@ def colour_first_step(
     att.tried = []
     estimate = align_from(cfg, att, model, step, True)
     assert estimate is not None  # nothing was tried since the list was emptied
-    if estimate[2] >= cfg.min_overlap and estimate[1].fitness >= cfg.min_fitness:
+    if estimate[2] >= cfg.icp.min_overlap and estimate[1].fitness >= cfg.icp.min_fitness:
         att.keep(*estimate)
 
 
 def colour_step(cfg: TrackingConfig, state: TrackerState, att: Attempt) -> None:
-    """Stage 4d (``tracking.colour_step_weight`` > 0, where colour is registered): the
+    """Stage 4d (``tracking.colour.colour_step_weight`` > 0, where colour is registered): the
     estimate refined against the previous frame's image, depth's estimate as a prior with
     its information (:func:`slam.frontend.colour_step.colour_refine`), at the weight colour
     has earned on this recording (:class:`~slam.frontend.colour_step.ColourAgreement`:
@@ -187,11 +187,11 @@ def colour_step(cfg: TrackingConfig, state: TrackerState, att: Attempt) -> None:
     The first step's motion is unknown, not large: its RANSAC seed puts colour in reach."""
     st, prev = state, att.prev_frame
     att.T_world_depth = att.T_world_cam
-    if not (cfg.colour_step_weight > 0 and att.ok and prev is not None):
+    if not (cfg.colour.colour_step_weight > 0 and att.ok and prev is not None):
         return
     if att.large and not att.first_step:  # fast, or after a gap: beyond colour's basin
         return
-    levels = len(cfg.iterations)
+    levels = len(cfg.icp.iterations)
     source, target = att.frame.photometric_image(levels), prev.photometric_image(levels)
     if source is None or target is None:
         return
@@ -201,12 +201,12 @@ def colour_step(cfg: TrackingConfig, state: TrackerState, att: Attempt) -> None:
         depth_step = inv_T(st.T_world_prev_depth) @ att.T_world_cam
     T_prev_cur = inv_T(att.T_world_prev) @ att.T_world_cam
     settings = StepSettings(
-        cfg.max_correspondence_m, cfg.huber_delta_m,
-        cfg.colour_step_textured, cfg.colour_step_geometry_stride,
+        cfg.icp.max_correspondence_m, cfg.icp.huber_delta_m,
+        cfg.colour.colour_step_textured, cfg.colour.colour_step_geometry_stride,
     )  # fmt: skip
     refined = step_with_colour(
         source, target, T_prev_cur, st.colour_agreement,
-        (depth_step, att.f2f), cfg.colour_step_weight, cfg.colour_step_iterations,
+        (depth_step, att.f2f), cfg.colour.colour_step_weight, cfg.colour.colour_step_iterations,
         settings, (att.frame.T_depth_colour, prev.T_depth_colour),
     )  # fmt: skip
     if refined is not T_prev_cur:
@@ -215,12 +215,12 @@ def colour_step(cfg: TrackingConfig, state: TrackerState, att: Attempt) -> None:
 
 def usual_departure(cfg: TrackingConfig, recent: list[float], dt_s: float) -> float:
     """The departure from the prediction (m) over ``dt_s`` above which a step breaks this
-    recording's own motion pattern: ``tracking.unusual_departure_factor`` times the
+    recording's own motion pattern: ``tracking.motion.unusual_departure_factor`` times the
     median acceleration of the recent estimates' departures (``recent``, m/s^2) (infinite when off, or before
     a third of the window has been seen since tracking (re)started)."""
-    if cfg.unusual_departure_factor <= 0 or 3 * len(recent) < cfg.unusual_departure_window:
+    if cfg.motion.unusual_departure_factor <= 0 or 3 * len(recent) < cfg.motion.unusual_departure_window:
         return float("inf")
-    return cfg.unusual_departure_factor * float(np.median(recent)) * dt_s**2
+    return cfg.motion.unusual_departure_factor * float(np.median(recent)) * dt_s**2
 
 
 def _warn_unconfirmed(att: Attempt, what: str, bound_m: float, why: str) -> None:

@@ -1,4 +1,4 @@
-"""The frame-to-frame colour step of tracking (``tracking.colour_step_weight``, opt-in) and the
+"""The frame-to-frame colour step of tracking (``tracking.colour.colour_step_weight``, opt-in) and the
 weight it gives colour, measured on the recording.
 
 :func:`colour_refine` moves a frame's depth estimate (frame-to-model ICP) by Gauss-Newton on

@@ -89,7 +89,7 @@ def _blind_check(
     all depth is used (a wall filling the view whose far corners are the only hold)."""
     noise = depth_noise(cfg)
     ratio = constraint_ratio(pyramid, K_track, icp_max, noise)
-    if ratio > cfg.degenerate_ratio and icp_max < cfg.depth_max_m:
+    if ratio > cfg.colour.degenerate_ratio and icp_max < cfg.depth_max_m:
         ratio_all = constraint_ratio(pyramid, K_track, cfg.depth_max_m, noise)
         if ratio_all < ratio:
             return cfg.depth_max_m, ratio_all
@@ -143,11 +143,11 @@ class PreparedFrame:
         on demand (:meth:`photometric_image`)."""
         t0 = time.perf_counter()
         depth = tracking_depth(frame.depth_m, cfg) if depth_m is None else depth_m
-        levels = len(cfg.iterations)
+        levels = len(cfg.icp.iterations)
         pyramid = depth_pyramid(depth, levels)  # built once: every ICP of this frame uses it
         K_track = scale_intrinsics(frame.K, cfg.downsample)
         icp_max = icp_depth_range(
-            depth, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
+            depth, cfg.depth_max_m, cfg.icp.icp_depth_max_m, cfg.icp.icp_near_fraction
         )
         icp_max, ratio = _blind_check(pyramid, K_track, icp_max, cfg)
         prep_ms = (time.perf_counter() - t0) * 1e3
@@ -221,17 +221,17 @@ class PreparedFrame:
     ) -> IcpResult:
         """Point-to-plane projective ICP of this frame to a target depth image (or pyramid) in
         the same camera; ``T_init``: the initial ``T_target_source``; ``iterations`` per level
-        (default ``cfg.iterations``)."""
+        (default ``cfg.icp.iterations``)."""
         return projective_icp(
             self.pyramid,
             target_depth,
             self.K_track,
             T_init,
-            cfg.iterations if iterations is None else iterations,
+            cfg.icp.iterations if iterations is None else iterations,
             self.icp_depth_max_m,
-            cfg.max_correspondence_m,
-            cfg.huber_delta_m,
-            cfg.coarse_correspondence_factor,
+            cfg.icp.max_correspondence_m,
+            cfg.icp.huber_delta_m,
+            cfg.icp.coarse_correspondence_factor,
         )
 
     def joint_to(
@@ -248,18 +248,18 @@ class PreparedFrame:
         Along directions depth constrains ``degenerate_ratio`` times worse than its best,
         colour decides alone. ``target_colour``: the target's ``T_depth_colour`` (None: its
         colour was seen from its depth camera, as a model view's is); ``iterations`` per level
-        (default ``cfg.iterations``)."""
+        (default ``cfg.icp.iterations``)."""
         assert self.rgbd is not None
         return joint_align(
             self.rgbd,
             target,
             T_init,
-            cfg.iterations if iterations is None else iterations,
-            cfg.max_correspondence_m,
-            cfg.huber_delta_m,
-            cfg.coarse_correspondence_factor,
+            cfg.icp.iterations if iterations is None else iterations,
+            cfg.icp.max_correspondence_m,
+            cfg.icp.huber_delta_m,
+            cfg.icp.coarse_correspondence_factor,
             weight,
             fitness_depth_max_m=self.icp_depth_max_m,
-            degenerate_ratio=cfg.degenerate_ratio,
+            degenerate_ratio=cfg.colour.degenerate_ratio,
             colour_poses=(self.T_depth_colour, target_colour),
         )

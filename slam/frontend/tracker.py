@@ -17,12 +17,12 @@ rescued by ORB + RANSAC against the last keyframes.
    :meth:`~Tracker.check_motion`: an estimate that departs from the prediction by more than a
    hand-held camera can accelerate is aligned again with colour joining depth (also one
    departing several times more than this recording's recent frames did,
-   ``tracking.unusual_departure_factor``, kept only where colour returns it towards the
+   ``tracking.motion.unusual_departure_factor``, kept only where colour returns it towards the
    prediction); depth slides along a wall filling the view, texture does not;
    :meth:`~Tracker.colour_first_step`: the
    first step, aligned with colour taken off the depth's instant, again once the step gives
    where the colour cameras were; :meth:`~Tracker.colour_step` (opt-in,
-   ``tracking.colour_step_weight``): the estimate refined against the previous frame's
+   ``tracking.colour.colour_step_weight``): the estimate refined against the previous frame's
    colour, depth's estimate a prior, at the weight colour has earned on the recording;
 5. :meth:`~Tracker.verify`: the checks; after a gap, or with an overlap far below the recent
    frames', the pose must be supported by ORB matches;
@@ -207,8 +207,8 @@ class Tracker:
         velocity = scale_motion(st.velocity, float(np.clip(dt_ratio, 0.0, MAX_EXTRAPOLATION)))
         first_step = not st.velocity_known
         fast = (
-            translation_norm(velocity) > cfg.large_motion_translation_m
-            or rotation_angle_deg(velocity) > cfg.large_motion_rotation_deg
+            translation_norm(velocity) > cfg.motion.large_motion_translation_m
+            or rotation_angle_deg(velocity) > cfg.motion.large_motion_rotation_deg
         )
         large = verify or first_step or fast
         status = TrackingStatus(p.index, "icp", False, p.timestamp, gap=verify)
@@ -218,7 +218,7 @@ class Tracker:
             prev = st.prev_pyramid if st.prev_pyramid is not None else st.prev_depth
         att = Attempt(p, status, st.T_world_prev, velocity, large, verify, dt_ratio, first_step)
         if large:  # a far start: more Gauss-Newton steps to converge
-            att.iterations = cfg.large_motion_iterations
+            att.iterations = cfg.icp.large_motion_iterations
         att.prev_depth, att.prev_frame = prev, st.prev_frame
         att.references = list(st.references)
         status.constraint_ratio = round(p.constraint_ratio, 2)
@@ -228,10 +228,10 @@ class Tracker:
         # depth in every alignment. The first step's motion is unknown, not fast: its RANSAC
         # seed puts colour within reach (depth alone slid 36 mm on the first step of a hall)
         att.colour_reach = not (verify or fast)
-        weak = p.constraint_ratio > cfg.photometric_ratio and att.colour_reach
-        blind = p.constraint_ratio > cfg.degenerate_ratio or weak
-        if blind and p.photometric_image(len(cfg.iterations)) is not None:
-            att.photometric = cfg.motion_check_photometric_weight
+        weak = p.constraint_ratio > cfg.colour.photometric_ratio and att.colour_reach
+        blind = p.constraint_ratio > cfg.colour.degenerate_ratio or weak
+        if blind and p.photometric_image(len(cfg.icp.iterations)) is not None:
+            att.photometric = cfg.colour.motion_check_photometric_weight
             status.photometric = att.photometric > 0
         if st.t_prev is not None and p.timestamp > st.t_prev:
             att.dt_s = p.timestamp - st.t_prev
@@ -285,7 +285,7 @@ class Tracker:
         hypothesis slid 18 cm along it overlapped 0.76 against the true pose's 0.68.)"""
         cfg = self.cfg
         if not (
-            cfg.hypotheses and (att.large or not att.ok) and att.overlap < cfg.hypothesis_overlap
+            cfg.motion.hypotheses and (att.large or not att.ok) and att.overlap < cfg.motion.hypothesis_overlap
         ):
             return
         candidates = self._candidates()
@@ -298,7 +298,7 @@ class Tracker:
             if estimate is None:
                 continue
             T2, icp2, score2 = estimate
-            if score2 > att.overlap and icp2.fitness >= cfg.min_fitness:
+            if score2 > att.overlap and icp2.fitness >= cfg.icp.min_fitness:
                 support2 = evidence.support(T2)
                 if 2 * support2 < support:  # the features contradict it
                     log.debug(
@@ -340,20 +340,20 @@ class Tracker:
         status.overlap = round(score, 4)
         if not att.ok:
             status.reason = (
-                f"overlap {score:.2f} (min {cfg.min_overlap}), ICP fitness {att.icp.fitness:.2f} "
-                f"(min {cfg.min_fitness}), RANSAC inliers {status.ransac_inliers}"
+                f"overlap {score:.2f} (min {cfg.icp.min_overlap}), ICP fitness {att.icp.fitness:.2f} "
+                f"(min {cfg.icp.min_fitness}), RANSAC inliers {status.ransac_inliers}"
             )
             return
         recent = self.state.recent_overlaps[-10:]
         usual = float(np.median(recent)) if len(recent) >= 3 else 0.0
-        suspect = score < cfg.suspect_overlap_ratio * usual
+        suspect = score < cfg.recovery.suspect_overlap_ratio * usual
         if not (att.verify or suspect):
             return
         support = self.ransac.support(att.features(), att.T_world_cam, self._candidates())
         # depth alone verifies a pose that overlaps the model as well as the frames before
         # the gap did (textureless scenes have no ORB evidence to offer)
-        as_before = not suspect and score >= cfg.verify_overlap_ratio * usual > 0
-        if support < cfg.verify_min_matches and score < cfg.hypothesis_overlap and not as_before:
+        as_before = not suspect and score >= cfg.recovery.verify_overlap_ratio * usual > 0
+        if support < cfg.recovery.verify_min_matches and score < cfg.motion.hypothesis_overlap and not as_before:
             att.ok = False
             status.reason = _unverified_reason(cfg, att.verify, support, score, usual)
 
@@ -384,7 +384,7 @@ class Tracker:
         moved = att.T_world_depth is not None and att.T_world_depth is not att.T_world_cam
         st.advance(p, T, velocity, att.overlap, att.feats, att.T_world_depth if moved else None)
         if att.acceleration is not None:
-            st.record_departure(att.acceleration, cfg.unusual_departure_window)
+            st.record_departure(att.acceleration, cfg.motion.unusual_departure_window)
         kf = self.last_keyframe
         if kf is not None:
             rel = inv_T(kf.T_world_cam) @ T
@@ -408,16 +408,16 @@ class Tracker:
         st = self.state
         st.add_keyframe(p, T, feats, segment)
         image = None  # without registered colour: the model's own colour
-        if self.cfg.photometric_reference == "keyframe":
-            image = p.photometric_image(len(self.cfg.iterations))
+        if self.cfg.colour.photometric_reference == "keyframe":
+            image = p.photometric_image(len(self.cfg.icp.iterations))
         if image is None:
             st.references = []
         else:  # the pose its colour was seen from
             T_colour = T.copy() if p.T_depth_colour is None else T @ p.T_depth_colour
-            st.references = (st.references + [(image, T_colour)])[-self.cfg.photometric_keyframes :]
+            st.references = (st.references + [(image, T_colour)])[-self.cfg.colour.photometric_keyframes :]
 
     def _candidates(self) -> list[Keyframe]:
-        return self.state.ransac_candidates(self.cfg.relocalisation_keyframes)
+        return self.state.ransac_candidates(self.cfg.recovery.relocalisation_keyframes)
 
     # --- checkpoints
     def state_dict(self) -> dict[str, Any]:
@@ -429,7 +429,7 @@ class Tracker:
     def load_state_dict(self, state: dict[str, Any], keyframes_by_id: dict[int, Keyframe]) -> None:
         """Continue from :meth:`state_dict` (``keyframes_by_id``: the checkpoint's keyframes,
         ``Keyframe.from_state``): the next ``track`` gives what it would have given."""
-        self.state = TrackerState.from_dict(state, keyframes_by_id, len(self.cfg.iterations))
+        self.state = TrackerState.from_dict(state, keyframes_by_id, len(self.cfg.icp.iterations))
         self._rng.bit_generator.state = state["rng"]
 
 
@@ -439,11 +439,11 @@ def _unverified_reason(
     why = (
         "after a gap"
         if gap
-        else f"(overlap below {cfg.suspect_overlap_ratio} of the recent frames' {usual:.2f})"
+        else f"(overlap below {cfg.recovery.suspect_overlap_ratio} of the recent frames' {usual:.2f})"
     )
     return (
         f"unverified {why}: {support} ORB matches agree with the pose "
-        f"(min {cfg.verify_min_matches}) and overlap {overlap:.2f} < "
-        f"{cfg.hypothesis_overlap} and < {cfg.verify_overlap_ratio} x the "
+        f"(min {cfg.recovery.verify_min_matches}) and overlap {overlap:.2f} < "
+        f"{cfg.motion.hypothesis_overlap} and < {cfg.recovery.verify_overlap_ratio} x the "
         f"recent frames' {usual:.2f}"
     )

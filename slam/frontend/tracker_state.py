@@ -43,10 +43,10 @@ class TrackerState:
     # the last frames' departures from the prediction (of the estimates kept), as m/s^2
     recent_accelerations: list[float] = field(default_factory=list)
     # the last keyframes' depth and grey pyramids and poses, oldest first: the colour frames
-    # are aligned to against the model (tracking.photometric_reference: keyframe); empty
+    # are aligned to against the model (tracking.colour.photometric_reference: keyframe); empty
     # without colour
     references: list[tuple[RgbdImage, np.ndarray]] = field(default_factory=list)
-    # the previous frame's pose by depth against the model (before tracking.colour_step_weight
+    # the previous frame's pose by depth against the model (before tracking.colour.colour_step_weight
     # moved it), and how far colour has been trusted on this recording
     T_world_prev_depth: np.ndarray | None = None
     colour_agreement: ColourAgreement = field(default_factory=ColourAgreement)
@@ -167,7 +167,7 @@ class TrackerState:
                 "every keyframe of the checkpoint (Keyframe.from_state) in keyframes_by_id"
             )
         prev_depth, prev = d["prev_depth"], d["prev_features"]
-        # checkpoints written before tracking.photometric_keyframes saved one "reference" (or None)
+        # checkpoints written before tracking.colour.photometric_keyframes saved one "reference" (or None)
         refs = d.get("references", [r for r in [d.get("reference")] if r is not None])
         return TrackerState(
             references=[
@@ -182,7 +182,7 @@ class TrackerState:
             recent_overlaps=list(d["recent_overlaps"]),
             recent_accelerations=[float(a) for a in d.get("recent_accelerations", [])],
             t_prev=d.get("t_prev"),
-            # checkpoints written before tracking.colour_step_weight: the pose was depth's
+            # checkpoints written before tracking.colour.colour_step_weight: the pose was depth's
             T_world_prev_depth=d.get("T_world_prev_depth", d["T_world_prev"]),
             colour_agreement=ColourAgreement(
                 [

@@ -4,9 +4,9 @@ Every frame's tracking is decided on its own. A frame without usable depth, or w
 fails the tracker's checks, is *lost* (not fused, no pose written). Each lost frame is tried,
 in order: against the model as after a gap (recovery; not for the frame just lost, which
 tracking already tried), relocalised against all keyframes of the map, then against every
-surface the model has seen (``tracking.rescue_min_weight``: a fast pan brings surfaces into
+surface the model has seen (``tracking.recovery.rescue_min_weight``: a fast pan brings surfaces into
 view faster than frames fuse them past the ray-cast's weight threshold). If that keeps failing
-for ``tracking.new_segment_after_lost`` frames with usable depth, a new map segment starts (a
+for ``tracking.recovery.new_segment_after_lost`` frames with usable depth, a new map segment starts (a
 new submap and a new component of the pose graph), joined to the old map later at the first
 verified revisits (see :mod:`slam.loops.closer`).
 
@@ -117,7 +117,7 @@ class LossRecovery:
                 tracked.reason += "; relocalisation: no keyframe verifies"
                 out = Outcome(None, tracked)
         if out.T_world_cam is None:
-            if self.lost_with_depth + 1 >= self.cfg.new_segment_after_lost:
+            if self.lost_with_depth + 1 >= self.cfg.recovery.new_segment_after_lost:
                 T_last = self.tracker.state.T_world_prev
                 assert T_last is not None
                 return self._new_segment(frame, T_last)
@@ -147,7 +147,7 @@ class LossRecovery:
             log.warning(
                 "frame %d: not relocalised after %d lost frames; starting map segment %d",
                 frame.index,
-                self.cfg.new_segment_after_lost,
+                self.cfg.recovery.new_segment_after_lost,
                 self.segment,
             )
             self.model.start_submap(kf.id, kf.T_world_cam, continuous=False)
@@ -186,13 +186,13 @@ class LossRecovery:
         self, frame: PreparedFrame, ratio: float, verify: bool, failed: Outcome
     ) -> Outcome:
         """A lost frame that no keyframe relocalises (``failed``, returned as it is when
-        ``tracking.rescue_min_weight`` is 0): :meth:`_recover` against every surface the model
+        ``tracking.recovery.rescue_min_weight`` is 0): :meth:`_recover` against every surface the model
         has seen, not only those fused past the ray-cast's weight threshold. ``verify``: the
         pose needs ORB support (the frame follows a gap or lost frames; the frame that was
         just lost follows the last tracked one, and is checked as any tracked frame is)."""
-        if self.cfg.rescue_min_weight <= 0:
+        if self.cfg.recovery.rescue_min_weight <= 0:
             return failed
-        return self._recover(frame, ratio, self.cfg.rescue_min_weight, verify)
+        return self._recover(frame, ratio, self.cfg.recovery.rescue_min_weight, verify)
 
     def _relocalise(self, frame: PreparedFrame) -> Outcome:
         """Register the frame against the whole map; on success tracking resumes there."""

@@ -58,7 +58,7 @@ def test_only_the_recent_frames_count():
 
 
 def test_colour_refine_follows_colour_where_depth_is_blind_and_weighs_both_elsewhere():
-    """The frame-to-frame colour step of tracking (``tracking.colour_step_weight``): a frame
+    """The frame-to-frame colour step of tracking (``tracking.colour.colour_step_weight``): a frame
     whose depth estimate slid 8 mm along a textured wall (depth is blind there) and is 3 mm
     off along the wall's normal (where depth is sure: its estimate is the prior the step starts
     from). Colour moves it along the wall onto the truth at any weight; along the normal the two
@@ -82,7 +82,7 @@ def test_colour_refine_follows_colour_where_depth_is_blind_and_weighs_both_elsew
 
 
 def test_colour_refine_on_the_textured_pixels_with_coarse_depth_information():
-    """The default settings of the step (``tracking.colour_step_textured`` 0.125,
+    """The default settings of the step (``tracking.colour.colour_step_textured`` 0.125,
     ``colour_step_geometry_stride`` 2): colour on the eighth of the pixels with the strongest
     gradients, depth's information on every second row and column. Along the wall the frame still ends on
     the truth; at a thousandth of depth's weight depth's estimate along the normal holds."""

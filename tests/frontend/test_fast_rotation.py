@@ -50,7 +50,7 @@ def _f2f_error(K, motion, depth_a, depth_b, init):
         depth_pyramid(bilateral_depth(downsample_depth(d), cfg.bilateral_sigma_m, 2.25), 3)
         for d in (depth_a, depth_b)
     ]
-    r = projective_icp(pyr[1], pyr[0], K2, init, cfg.iterations, 4.0, 0.07, 0.05, 2.0)
+    r = projective_icp(pyr[1], pyr[0], K2, init, cfg.icp.iterations, 4.0, 0.07, 0.05, 2.0)
     err = inv_T(motion) @ r.T_target_source
     return translation_norm(err) * 1e3, rotation_angle_deg(err)
 

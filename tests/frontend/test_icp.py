@@ -24,8 +24,8 @@ def test_icp_recovers_known_motion(room, K_vga):
 
 def test_a_far_start_on_a_weakly_constrained_scene_needs_more_iterations():
     # a box on a floor (the cabinet's shape): from 8.5 cm and 6 deg away, the slide along the
-    # floor converges slowly; tracking.iterations' budget stops about 1 cm short, that of
-    # tracking.large_motion_iterations (twice the steps) lands nearer
+    # floor converges slowly; tracking.icp.iterations' budget stops about 1 cm short, that of
+    # tracking.icp.large_motion_iterations (twice the steps) lands nearer
     floor = o3d.geometry.TriangleMesh.create_box(6.0, 6.0, 0.01).translate((-3.0, -3.0, -0.01))
     box = o3d.geometry.TriangleMesh.create_box(0.8, 0.5, 0.7).translate((-0.4, -0.25, 0.0))
     K = np.array([[262.5, 0.0, 159.5], [0.0, 262.5, 119.5], [0.0, 0.0, 1.0]])
@@ -35,7 +35,7 @@ def test_a_far_start_on_a_weakly_constrained_scene_needs_more_iterations():
     depth_b = render_depth(floor + box, K, 320, 240, T_world_a @ motion)
     cfg = TrackingConfig()
     errors = []
-    for iterations in (cfg.iterations, cfg.large_motion_iterations):
+    for iterations in (cfg.icp.iterations, cfg.icp.large_motion_iterations):
         res = projective_icp(depth_b, depth_a, K, np.eye(4), iterations, 4.0, 0.03, 0.05, 2.0)
         errors.append(translation_norm(inv_T(motion) @ res.T_target_source))
     assert errors[0] > 0.008, errors  # measured 9.8 mm

@@ -9,7 +9,7 @@ import logging
 import numpy as np
 import pytest
 
-from slam.config import MappingConfig, TrackingConfig
+from slam.config import ColourConfig, MappingConfig, MotionConfig, TrackingConfig
 from slam.data.base import Frame
 from slam.errors import TrackingError
 from slam.frontend import colour_stages
@@ -25,6 +25,7 @@ from slam.geometry import exp_se3, inv_T, rotation_angle_deg, translation_norm
 from slam.keyframe import Keyframe
 from slam.mapping.submaps import SubmapMap
 from slam.synthetic import SynthConfig, build_scene, make_trajectory, render_frame
+from tests.tracking_configs import tracking_config
 
 # ------------------------------------------------------------------------------------------------
 # helpers
@@ -98,7 +99,7 @@ def _errors(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 def _tracker_at(world: World, i: int, **cfg) -> Tracker:
     """A tracker reset at frame ``i``'s true pose, as if it had tracked a step there at rest
     (so the motion is known: no motion)."""
-    tracker = Tracker(TrackingConfig(**cfg))
+    tracker = Tracker(tracking_config(**cfg))
     tracker.reset(world.frame(i), world.poses[i])
     tracker.state.recent_overlaps = [0.9]
     return tracker
@@ -166,7 +167,7 @@ def test_a_large_or_unknown_motion_gets_the_large_motion_iterations(world, model
     tracker = _tracker_at(world, 5, large_motion_iterations=[9, 7, 5])
     tracker.state.velocity = _motion(0.02, 1.0)
     p = tracker.prepare(world.frame(6))
-    assert tracker.predict(p).iterations is None  # tracking.iterations
+    assert tracker.predict(p).iterations is None  # tracking.icp.iterations
     gap = tracker.predict(p, verify=True)
     assert gap.large and gap.iterations == [9, 7, 5]
     # every ICP of the attempt (frame to frame, frame to model) runs on that budget
@@ -234,7 +235,7 @@ def test_a_start_already_tried_is_skipped(world, model):
     assert align_from(tracker.cfg, att, model, _motion(0.004, 0.2), False) is None
     assert align_from(tracker.cfg, att, model, _motion(0.006, 0.0), False) is not None
     assert len(att.tried) == 2
-    tracker.cfg.same_start_translation_m = 0.01
+    tracker.cfg.icp.same_start_translation_m = 0.01
     assert align_from(tracker.cfg, att, model, _motion(0.008, 0.0), False) is None
 
 
@@ -418,13 +419,15 @@ def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
     # before a third of the window is known, or off, depth alone stands
     tracker.state.recent_accelerations = [0.5] * 9
     assert attempt(slid).T_world_cam is slid
-    tracker.cfg = TrackingConfig(unusual_departure_factor=0.0)  # off
+    tracker.cfg = TrackingConfig(motion=MotionConfig(unusual_departure_factor=0.0))  # off
     tracker.state.recent_accelerations = [0.5] * 30
     assert attempt(slid).T_world_cam is slid
     # commit records the departure of the estimate kept, the last window of them
     att = attempt(slid)
     assert att.acceleration == pytest.approx(0.005 * 30**2, rel=1e-6)
-    tracker.cfg = TrackingConfig(unusual_departure_factor=3.0, unusual_departure_window=30)
+    tracker.cfg = TrackingConfig(
+        motion=MotionConfig(unusual_departure_factor=3.0, unusual_departure_window=30)
+    )
     tracker.commit(att)  # (recorded whether or not the check is on)
     assert tracker.state.recent_accelerations == [0.5] * 29 + [att.acceleration]
 
@@ -470,24 +473,24 @@ def test_the_near_cut_is_dropped_where_near_depth_alone_is_blind():
     p = frame_module.PreparedFrame.build(
         Frame(24, 0.8, color, depth, cfg_s.calibration().K), cfg, None
     )
-    rule = icp_depth_range(p.depth_m, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction)
-    assert rule == cfg.icp_depth_max_m
+    rule = icp_depth_range(p.depth_m, cfg.depth_max_m, cfg.icp.icp_depth_max_m, cfg.icp.icp_near_fraction)
+    assert rule == cfg.icp.icp_depth_max_m
     near_only = frame_module.depth_constraint(
         p.pyramid[1], frame_module.scale_intrinsics(p.K_track, 2), rule, frame_module.DepthNoise()
     )
-    assert near_only.ratio > cfg.degenerate_ratio
+    assert near_only.ratio > cfg.colour.degenerate_ratio
     assert p.icp_depth_max_m == cfg.depth_max_m
-    assert p.constraint_ratio < cfg.degenerate_ratio
+    assert p.constraint_ratio < cfg.colour.degenerate_ratio
 
 
 def test_a_frame_whose_depth_is_blind_is_aligned_with_colour(world, model):
     tracker = _tracker_at(world, 9)
     p = tracker.prepare(world.frame(10))
     cfg = tracker.cfg
-    assert p.constraint_ratio < cfg.photometric_ratio  # the room constrains every motion
+    assert p.constraint_ratio < cfg.colour.photometric_ratio  # the room constrains every motion
     # ... so the depth range is the usual one
     assert p.icp_depth_max_m == icp_depth_range(
-        p.depth_m, cfg.depth_max_m, cfg.icp_depth_max_m, cfg.icp_near_fraction
+        p.depth_m, cfg.depth_max_m, cfg.icp.icp_depth_max_m, cfg.icp.icp_near_fraction
     )
     att = tracker.predict(p)
     assert att.photometric == 0 and not att.status.photometric
@@ -497,7 +500,7 @@ def test_a_frame_whose_depth_is_blind_is_aligned_with_colour(world, model):
     assert att.photometric > 0 and att.status.photometric
     # weak, not blind: depth keeps its near cut, yet colour joins it, unless the motion is
     # large (after a gap, or RANSAC-seeded: beyond the photometric term's basin)
-    p.constraint_ratio = 0.5 * (cfg.photometric_ratio + cfg.degenerate_ratio)
+    p.constraint_ratio = 0.5 * (cfg.colour.photometric_ratio + cfg.colour.degenerate_ratio)
     assert tracker.predict(p).status.photometric
     assert not tracker.predict(p, verify=True).status.photometric
     state = tracker.state
@@ -636,7 +639,7 @@ def test_model_alignment_warps_the_last_keyframes_colour(world, model):
 
 
 def test_the_colour_references_are_the_last_keyframes_of_the_segment(world, model):
-    """tracking.photometric_keyframes of the newest keyframes' images are kept, oldest first;
+    """tracking.colour.photometric_keyframes of the newest keyframes' images are kept, oldest first;
     a restart (a new segment, or a relocalised frame) starts them again. A checkpoint written
     before photometric_keyframes existed (one "reference") still loads."""
     tracker = _tracker_at(world, 0, photometric_reference="keyframe", photometric_keyframes=2)
@@ -783,7 +786,7 @@ def _plain(value) -> bool:
 
 
 def test_the_colour_step_refines_each_frame_at_the_weight_colour_earned(world, model):
-    """With ``tracking.colour_step_weight`` every frame is refined against the previous frame's
+    """With ``tracking.colour.colour_step_weight`` every frame is refined against the previous frame's
     colour; colour's weight is measured from the frames (synthetic colour is as exact as the
     depth: it earns weight), and the state keeps each frame's depth estimate and the
     measurements (checkpoints too)."""
@@ -799,7 +802,7 @@ def test_the_colour_step_refines_each_frame_at_the_weight_colour_earned(world, m
     assert translation_norm(inv_T(state.T_world_prev_depth) @ state.T_world_prev) < 0.002
     saved = tracker.state_dict()
     keyframes = {kf.id: kf for kf in state.keyframes}
-    back = Tracker(TrackingConfig(colour_step_weight=1.0))
+    back = Tracker(TrackingConfig(colour=ColourConfig(colour_step_weight=1.0)))
     back.load_state_dict(saved, keyframes)
     assert back.state.colour_agreement.factors == state.colour_agreement.factors
     np.testing.assert_array_equal(back.state.T_world_prev_depth, state.T_world_prev_depth)
@@ -819,7 +822,7 @@ def test_state_dict_round_trip_gives_the_same_next_result(world, model):
     assert _plain(state) and state["keyframes"] == [kf.id for kf in a.state.keyframes]
     assert state["prev_features"] is not None
     keyframes = {kf.id: Keyframe.from_state(kf.to_state()) for kf in a.state.keyframes}
-    b = Tracker(TrackingConfig(photometric_reference="keyframe"))
+    b = Tracker(TrackingConfig(colour=ColourConfig(photometric_reference="keyframe")))
     b.load_state_dict(state, keyframes)
     assert b.state.keyframes == [keyframes[i] for i in state["keyframes"]]
     assert b.state.recent_accelerations == a.state.recent_accelerations

@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slam.config import MappingConfig, TrackingConfig
+from slam.config import MappingConfig
 from slam.frontend.tracker import Tracker
 from slam.geometry import inv_T, translation_norm
 from slam.loops.recovery import LossRecovery
 from slam.mapping.submaps import SubmapMap
 from tests.frontend.test_tracker import World
+from tests.tracking_configs import tracking_config
 
 
 class NoKeyframe:
@@ -33,7 +34,7 @@ def _recovery(world: World, **cfg) -> LossRecovery:
     for i in range(11):
         f = world.frame(i)
         model.integrate(f.depth_m, f.color, f.K, world.poses[i])
-    tracking = TrackingConfig(min_overlap=0.7, **cfg)
+    tracking = tracking_config(min_overlap=0.7, **cfg)
     tracker = Tracker(tracking)
     tracker.reset(world.frame(11), world.poses[11])
     tracker.state.recent_overlaps = [0.9]
