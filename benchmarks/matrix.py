@@ -182,7 +182,7 @@ def strided_copy(seq: Path, stride: int) -> Path:
 
 # runs in a fresh process, importing slam from the tree under test: numpy and slam only
 _CHILD = r"""
-import json, logging, sys, time
+import json, logging, resource, sys, time
 import numpy as np
 import slam
 from slam.trajectory import read_tum
@@ -214,6 +214,7 @@ out.update(
     step_err_worst_frame=int(np.flatnonzero(ok)[worst + 1]) if len(err) else None,
     true_step_median_m=float(np.median(true_step)) if len(err) else None,
     colour_frames=sum(1 for s in res.tracking if getattr(s, "photometric", False)),
+    peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
 )
 print(json.dumps(out))
 """

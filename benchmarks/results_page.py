@@ -1,5 +1,5 @@
-"""docs/results.md: today's default on every shared sequence and the scene matrix, from one
-scene-matrix run.
+"""docs/results.md and the README's results table: today's default on every shared sequence and
+the scene matrix, from one scene-matrix run.
 
     python benchmarks/results_page.py --run            # run the matrix (~45 min), then write
     python benchmarks/results_page.py --matrix benchmarks/results/matrix-s60-head.json
@@ -7,8 +7,10 @@ scene-matrix run.
 ``--run`` runs ``benchmarks/matrix.py --tag results`` (every shared real sequence, again at
 three times the speed, and every synthetic row) in this tree and writes the page from its
 result; ``--matrix FILE`` writes it from a result already made. The page states the date, the
-machine and the commit, and per row odometry / final ATE, worst step error, fps and the frames
-colour joined depth in. Nothing else should run meanwhile when the fps matter.
+machine and the commit, and per row odometry / final ATE, worst step error, fps, peak memory and
+the frames colour joined depth in; the README's table (between its ``results`` markers) gets the
+real recordings, one figure each, beside the reference figures of :data:`REFERENCE`. Nothing
+else should run meanwhile when the fps matter.
 """
 
 from __future__ import annotations
@@ -23,6 +25,16 @@ from pathlib import Path
 from common import ROOT
 
 PAGE = ROOT / "docs" / "results.md"
+README = ROOT / "README.md"
+BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
+#: the README's reference columns: Open3D's dense SLAM on the same frames
+#: (``benchmarks/open3d_baseline.py``, 1 cm voxels) and published figures
+REFERENCE = {
+    "tum-fr1-xyz": ("0.0220 m", "DVO-SLAM ~0.011 m, KinectFusion ~0.026 m"),
+    "tum-fr1-rpy-500": ("-", "-"),
+    "tum-fr3-cabinet-kf58": ("0.526 m", "-"),
+    "7scenes-300": ("-", "-"),
+}
 
 
 def _commit() -> str:
@@ -36,14 +48,45 @@ def _mm(v: float | None) -> str:
     return "-" if v is None else f"{1000 * v:.1f}"
 
 
+def _num(v: float | None, fmt: str = "{:.1f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
 def _row(name: str, r: dict) -> str:
-    fps = r.get("fps")
     return (
         f"| `{name}` | {r.get('frames', '-')} | {_mm(r.get('ate_rmse_odometry_m'))} / "
         f"**{_mm(r.get('ate_rmse_m'))}** | {_mm(r.get('step_err_max_m'))} | "
-        f"{'-' if fps is None else f'{fps:.1f}'} | {r.get('colour_frames', '-')} | "
-        f"{r.get('tracking_failures', '-')} |"
+        f"{_num(r.get('fps'))} | {_num(r.get('peak_rss_mb'), '{:.0f}')} | "
+        f"{r.get('colour_frames', '-')} | {r.get('tracking_failures', '-')} |"
     )
+
+
+def readme_table(matrix: dict) -> str:
+    """The README's table: each real recording at its own speed (no ``-x3`` rows)."""
+    lines = [
+        "| sequence | frames | odometry / final ATE | fps | peak MB | Open3D dense SLAM (1 cm) "
+        "| published |",
+        "|---|---:|---|---:|---:|---|---|",
+    ]
+    for name, r in matrix["rows"].items():
+        if name not in REFERENCE:
+            continue
+        o3d, published = REFERENCE[name]
+        odo, final = r.get("ate_rmse_odometry_m"), r.get("ate_rmse_m")
+        lines.append(
+            f"| `{name}` | {r.get('frames', '-')} | {_num(odo, '{:.4f}')} / "
+            f"**{_num(final, '{:.4f}')} m** | {_num(r.get('fps'))} | "
+            f"{_num(r.get('peak_rss_mb'), '{:.0f}')} | {o3d} | {published} |"
+        )
+    return "\n".join(lines)
+
+
+def with_readme_table(readme: str, table: str) -> str:
+    """``readme`` with the text between its results markers replaced by ``table``."""
+    start, stop = readme.find(BEGIN), readme.find(END)
+    if start < 0 or stop < start:
+        raise SystemExit(f"{README}: no {BEGIN} ... {END} block to write the table into")
+    return readme[: start + len(BEGIN)] + "\n" + table + "\n" + readme[stop:]
 
 
 def render(matrix: dict, source: Path) -> str:
@@ -63,16 +106,17 @@ def render(matrix: dict, source: Path) -> str:
         "",
         "ATE in millimetres (RMSE after SE(3) alignment; odometry / **final**), the worst "
         "frame-to-frame step error of odometry (mm), whole-run fps (the matrix runs rows "
-        "one after another on the same machine: compare fps within a page only), the frames "
-        "colour joined depth in, and the frames lost. `-x3`: the recording on every third "
+        "one after another on the same machine: compare fps within a page only), the peak "
+        "memory of the run's process (MB), the frames colour joined depth in, and the frames "
+        "lost. `-x3`: the recording on every third "
         "frame (its motion three times as fast); `-hh`: synthetic rows imitating a hand-held "
         "Kinect v1.",
         "",
     ]
     table = [
-        "| sequence | frames | odometry / final ATE (mm) | worst step (mm) | fps | colour frames "
-        "| lost |",
-        "|---|---:|---|---:|---:|---:|---:|",
+        "| sequence | frames | odometry / final ATE (mm) | worst step (mm) | fps | peak MB "
+        "| colour frames | lost |",
+        "|---|---:|---|---:|---:|---:|---:|---:|",
     ]
     out = head + ["## Real recordings", ""] + table + [_row(n, rows[n]) for n in real]
     out += ["", "## Synthetic scene matrix", ""] + table + [_row(n, rows[n]) for n in synthetic]
@@ -94,8 +138,10 @@ def main() -> None:
     if source is None:
         ap.error("give --run or --matrix FILE")
     source = source.resolve()
-    PAGE.write_text(render(json.loads(source.read_text()), source))
-    print(f"wrote {PAGE}")
+    matrix = json.loads(source.read_text())
+    PAGE.write_text(render(matrix, source))
+    README.write_text(with_readme_table(README.read_text(), readme_table(matrix)))
+    print(f"wrote {PAGE} and the table of {README}")
 
 
 if __name__ == "__main__":

@@ -114,7 +114,7 @@ def test_the_results_page_is_written_from_a_matrix_result(tmp_path, monkeypatch)
         "rows": {
             "tum-fr1-xyz": {"frames": 792, "ate_rmse_odometry_m": 0.0109, "ate_rmse_m": 0.0085,
                             "step_err_max_m": 0.0138, "fps": 15.4, "colour_frames": 15,
-                            "tracking_failures": 0},
+                            "tracking_failures": 0, "peak_rss_mb": 1040.2},
             "wall-x1-s0": {"frames": 240, "ate_rmse_odometry_m": 0.004, "ate_rmse_m": 0.003},
         },
     }  # fmt: skip
@@ -123,5 +123,11 @@ def test_the_results_page_is_written_from_a_matrix_result(tmp_path, monkeypatch)
     monkeypatch.setattr(page, "ROOT", tmp_path)
     text = page.render(matrix, source)
     real, synthetic = text.split("## Synthetic scene matrix")
-    assert "| `tum-fr1-xyz` | 792 | 10.9 / **8.5** | 13.8 | 15.4 | 15 | 0 |" in real
-    assert "| `wall-x1-s0` | 240 | 4.0 / **3.0** | - | - | - | - |" in synthetic
+    assert "| `tum-fr1-xyz` | 792 | 10.9 / **8.5** | 13.8 | 15.4 | 1040 | 15 | 0 |" in real
+    assert "| `wall-x1-s0` | 240 | 4.0 / **3.0** | - | - | - | - | - |" in synthetic
+    # the README's table: the real recordings only, between its markers
+    readme = f"intro\n{page.BEGIN}\nold table\n{page.END}\nafter\n"
+    new = page.with_readme_table(readme, page.readme_table(matrix))
+    assert new.startswith(f"intro\n{page.BEGIN}\n| sequence |") and new.endswith(f"{page.END}\nafter\n")
+    assert "| `tum-fr1-xyz` | 792 | 0.0109 / **0.0085 m** | 15.4 | 1040 | 0.0220 m |" in new
+    assert "wall-x1-s0" not in new and "old table" not in new

@@ -35,7 +35,7 @@ class TrackerState:
     prev_features: Keyframe | None = None  # the previous frame's features, when it computed them
     prev_depth: np.ndarray | None = None  # the previous frame's depth at tracking resolution
     prev_pyramid: list[np.ndarray] | None = None  # ... and its ICP pyramid (not saved)
-    prev_frame: PreparedFrame | None = None  # ... the prepared frame itself (not saved)
+    prev_frame: PreparedFrame | None = None  # ... the prepared frame itself (saved: its grey)
     t_prev: float | None = None  # ... and its timestamp
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))  # T_prev_cur of last step
     keyframes: list[Keyframe] = field(default_factory=list)
@@ -151,6 +151,7 @@ class TrackerState:
             "keyframes": [kf.id for kf in self.keyframes],
             "T_world_prev_depth": self.T_world_prev_depth,
             "colour_agreement": np.asarray(self.colour_agreement.factors, float).reshape(-1, 2),
+            "prev_frame": _frame_state(self.prev_frame),
         }
 
     @staticmethod
@@ -158,8 +159,8 @@ class TrackerState:
         d: dict[str, Any], keyframes_by_id: dict[int, Keyframe], levels: int
     ) -> TrackerState:
         """The state :meth:`to_dict` saved; the ICP pyramid of the previous depth (``levels``
-        levels) and the references' pyramids are rebuilt, the previous frame's joint-alignment
-        pyramids are not (they were not saved)."""
+        levels), the references' pyramids and the previous frame's grey pyramids (the joint
+        alignment's target of the next frame) are rebuilt."""
         missing = [i for i in d["keyframes"] if int(i) not in keyframes_by_id]
         if missing:
             raise SlamError(
@@ -167,6 +168,7 @@ class TrackerState:
                 "every keyframe of the checkpoint (Keyframe.from_state) in keyframes_by_id"
             )
         prev_depth, prev = d["prev_depth"], d["prev_features"]
+        prev_pyramid = None if prev_depth is None else depth_pyramid(prev_depth, levels)
         # checkpoints written before tracking.colour.photometric_keyframes saved one "reference" (or None)
         refs = d.get("references", [r for r in [d.get("reference")] if r is not None])
         return TrackerState(
@@ -176,7 +178,8 @@ class TrackerState:
             T_world_prev=d["T_world_prev"],
             prev_features=None if prev is None else Keyframe.from_state(prev),
             prev_depth=prev_depth,
-            prev_pyramid=None if prev_depth is None else depth_pyramid(prev_depth, levels),
+            prev_pyramid=prev_pyramid,
+            prev_frame=_frame_from_state(d.get("prev_frame"), prev_depth, prev_pyramid, levels),
             velocity=d["velocity"],
             keyframes=[keyframes_by_id[int(i)] for i in d["keyframes"]],
             recent_overlaps=list(d["recent_overlaps"]),
@@ -191,6 +194,49 @@ class TrackerState:
                 ]
             ),
         )
+
+
+def _frame_state(p: PreparedFrame | None) -> dict[str, Any] | None:
+    """What the next frame reads of the previous one besides its depth: its grey image (the
+    joint alignment's target), index, instants and where its colour camera was."""
+    if p is None:
+        return None
+    rgbd = p.photometric_image(len(p.pyramid))
+    return {
+        "index": p.index,
+        "timestamp": p.timestamp,
+        "color_dt_s": p.frame.color_dt_s,
+        "K_track": p.K_track,
+        "icp_depth_max_m": p.icp_depth_max_m,
+        "constraint_ratio": p.constraint_ratio,
+        "T_depth_colour": p.T_depth_colour,
+        "grey": None if rgbd is None or rgbd.intensity is None else rgbd.intensity[0],
+    }
+
+
+def _frame_from_state(
+    d: dict[str, Any] | None,
+    depth_m: np.ndarray | None,
+    pyramid: list[np.ndarray] | None,
+    levels: int,
+) -> PreparedFrame | None:
+    """The previous frame as :func:`_frame_state` kept it: at tracking resolution, without
+    its full-resolution images (its features are ``prev_features``)."""
+    if d is None or depth_m is None or pyramid is None:
+        return None
+    from slam.data.base import Frame
+
+    K = np.asarray(d["K_track"], float)
+    frame = Frame(int(d["index"]), float(d["timestamp"]), None, depth_m, K,
+                  float(d["color_dt_s"]))  # fmt: skip
+    grey = d["grey"]
+    p = PreparedFrame(
+        frame, depth_m, pyramid, K, float(d["icp_depth_max_m"]),
+        rgbd=None if grey is None else RgbdImage(pyramid, grey, K, levels),
+        colour_registered=grey is not None, constraint_ratio=float(d["constraint_ratio"]),
+    )  # fmt: skip
+    p.T_depth_colour = d["T_depth_colour"]
+    return p
 
 
 def _features_keyframe(

@@ -834,6 +834,16 @@ def test_state_dict_round_trip_gives_the_same_next_result(world, model):
         assert np.array_equal(Ta, Tb)
         for x, y in zip(ra.depth + ra.intensity + ra.K, rb.depth + rb.intensity + rb.K):
             np.testing.assert_array_equal(x, y)
+    # the previous frame: the next frame's joint alignment reads its grey pyramids (a resumed
+    # run lost them, so its first frame could not align with colour)
+    pa, pb = a.state.prev_frame, b.state.prev_frame
+    assert pa is not None and pb is not None and (pa.index, pa.timestamp) == (pb.index, pb.timestamp)
+    ia, ib = pa.photometric_image(3), pb.photometric_image(3)
+    assert ia is not None and ib is not None
+    for x, y in zip(ia.intensity + ia.depth + ia.K, ib.intensity + ib.depth + ib.K):
+        np.testing.assert_array_equal(x, y)
+    assert pb.frame.color_dt_s == pa.frame.color_dt_s
+    assert np.array_equal(pa.T_depth_colour, pb.T_depth_colour) or pa.T_depth_colour is None is pb.T_depth_colour
     # after a gap: RANSAC seeds, so the generator's state matters too
     # (Open3D's kernels are not deterministic: the same tracking twice, even by one tracker,
     # may differ by a pixel's correspondence, a few 1e-5 m; a different RANSAC draw would show
