@@ -20,7 +20,7 @@ from slam.run_folder import (
     CONFIG_FILE,
     METRICS_FILE,
     RunFolder,
-    discard_unfinished,
+    clear_run_dir,
     make_run_dir,
     prepare_run_dir,
     remove_work_dirs,
@@ -146,15 +146,16 @@ def _number(value: float | None) -> str:
 @contextmanager
 def _claimed(out: Path, created: bool) -> Iterator[None]:
     """Hold the run folder's lock while the run writes it. A run that fails before its first
-    checkpoint leaves nothing behind (no config.yaml, no spilled submaps, no folder it created),
-    so the corrected run needs no --overwrite; one with a checkpoint stays resumable."""
+    checkpoint leaves nothing behind (no config.yaml, spilled submaps or half-written results, no
+    folder it created), so the corrected run needs no --overwrite; one with a checkpoint stays
+    resumable."""
     try:
         with RunLock(out):
             try:
                 yield
             except BaseException:
                 if not (has_checkpoint(out) or _chunked(out)):
-                    discard_unfinished(out)
+                    clear_run_dir(out)  # nothing of it can be resumed: leave the folder free
                 raise
     finally:
         if created and out.is_dir() and not any(out.iterdir()):

@@ -351,9 +351,7 @@ def _moved_into_sections(cls: type, data: dict[str, Any], where: str) -> dict[st
     if cls is not TrackingConfig:
         return data
     hints = typing.get_type_hints(cls)
-    home = {
-        f.name: sub for sub in _TRACKING_SUBSECTIONS for f in dataclasses.fields(hints[sub])
-    }
+    home = {f.name: sub for sub in _TRACKING_SUBSECTIONS for f in dataclasses.fields(hints[sub])}
     out = dict(data)
     for key in [k for k in data if k in home]:
         sub = out.get(home[key]) or {}

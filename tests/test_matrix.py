@@ -128,6 +128,8 @@ def test_the_results_page_is_written_from_a_matrix_result(tmp_path, monkeypatch)
     # the README's table: the real recordings only, between its markers
     readme = f"intro\n{page.BEGIN}\nold table\n{page.END}\nafter\n"
     new = page.with_readme_table(readme, page.readme_table(matrix))
-    assert new.startswith(f"intro\n{page.BEGIN}\n| sequence |") and new.endswith(f"{page.END}\nafter\n")
+    assert new.startswith(f"intro\n{page.BEGIN}\n| sequence |") and new.endswith(
+        f"{page.END}\nafter\n"
+    )
     assert "| `tum-fr1-xyz` | 792 | 0.0109 / **0.0085 m** | 15.4 | 1040 | 0.0220 m |" in new
     assert "wall-x1-s0" not in new and "old table" not in new

@@ -192,6 +192,8 @@ class Sequence(ABC):
     calibration: Calibration
     #: where the calibration came from, in words (a calibration.yaml, defaults, the config)
     calibration_source: str = "the loader's defaults"
+    #: a colour image that cannot line up with depth was reported (once per sequence)
+    _misfit_reported: bool = False
 
     @property
     def name(self) -> str:
@@ -226,7 +228,7 @@ class Sequence(ABC):
         from slam.data.images import fit_color
 
         color, warning = fit_color(color, depth.shape)
-        if warning is not None and not getattr(self, "_misfit_reported", False):
+        if warning is not None and not self._misfit_reported:
             self._misfit_reported = True
             log.warning(
                 "%s: frame %d: %s; check the folder's colour images (later frames like it "

@@ -218,7 +218,10 @@ def usual_departure(cfg: TrackingConfig, recent: list[float], dt_s: float) -> fl
     recording's own motion pattern: ``tracking.motion.unusual_departure_factor`` times the
     median acceleration of the recent estimates' departures (``recent``, m/s^2) (infinite when off, or before
     a third of the window has been seen since tracking (re)started)."""
-    if cfg.motion.unusual_departure_factor <= 0 or 3 * len(recent) < cfg.motion.unusual_departure_window:
+    if (
+        cfg.motion.unusual_departure_factor <= 0
+        or 3 * len(recent) < cfg.motion.unusual_departure_window
+    ):
         return float("inf")
     return cfg.motion.unusual_departure_factor * float(np.median(recent)) * dt_s**2
 

@@ -285,7 +285,9 @@ class Tracker:
         hypothesis slid 18 cm along it overlapped 0.76 against the true pose's 0.68.)"""
         cfg = self.cfg
         if not (
-            cfg.motion.hypotheses and (att.large or not att.ok) and att.overlap < cfg.motion.hypothesis_overlap
+            cfg.motion.hypotheses
+            and (att.large or not att.ok)
+            and att.overlap < cfg.motion.hypothesis_overlap
         ):
             return
         candidates = self._candidates()
@@ -353,7 +355,11 @@ class Tracker:
         # depth alone verifies a pose that overlaps the model as well as the frames before
         # the gap did (textureless scenes have no ORB evidence to offer)
         as_before = not suspect and score >= cfg.recovery.verify_overlap_ratio * usual > 0
-        if support < cfg.recovery.verify_min_matches and score < cfg.motion.hypothesis_overlap and not as_before:
+        if (
+            support < cfg.recovery.verify_min_matches
+            and score < cfg.motion.hypothesis_overlap
+            and not as_before
+        ):
             att.ok = False
             status.reason = _unverified_reason(cfg, att.verify, support, score, usual)
 
@@ -414,7 +420,9 @@ class Tracker:
             st.references = []
         else:  # the pose its colour was seen from
             T_colour = T.copy() if p.T_depth_colour is None else T @ p.T_depth_colour
-            st.references = (st.references + [(image, T_colour)])[-self.cfg.colour.photometric_keyframes :]
+            st.references = (st.references + [(image, T_colour)])[
+                -self.cfg.colour.photometric_keyframes :
+            ]
 
     def _candidates(self) -> list[Keyframe]:
         return self.state.ransac_candidates(self.cfg.recovery.relocalisation_keyframes)

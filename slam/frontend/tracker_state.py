@@ -46,8 +46,9 @@ class TrackerState:
     # are aligned to against the model (tracking.colour.photometric_reference: keyframe); empty
     # without colour
     references: list[tuple[RgbdImage, np.ndarray]] = field(default_factory=list)
-    # the previous frame's pose by depth against the model (before tracking.colour.colour_step_weight
-    # moved it), and how far colour has been trusted on this recording
+    # the previous frame's pose by depth against the model (before the colour step,
+    # tracking.colour.colour_step_weight, moved it), and how far colour has been trusted on this
+    # recording
     T_world_prev_depth: np.ndarray | None = None
     colour_agreement: ColourAgreement = field(default_factory=ColourAgreement)
 
@@ -169,7 +170,7 @@ class TrackerState:
             )
         prev_depth, prev = d["prev_depth"], d["prev_features"]
         prev_pyramid = None if prev_depth is None else depth_pyramid(prev_depth, levels)
-        # checkpoints written before tracking.colour.photometric_keyframes saved one "reference" (or None)
+        # a state saved before tracking.colour.photometric_keyframes held one "reference"
         refs = d.get("references", [r for r in [d.get("reference")] if r is not None])
         return TrackerState(
             references=[
@@ -185,7 +186,7 @@ class TrackerState:
             recent_overlaps=list(d["recent_overlaps"]),
             recent_accelerations=[float(a) for a in d.get("recent_accelerations", [])],
             t_prev=d.get("t_prev"),
-            # checkpoints written before tracking.colour.colour_step_weight: the pose was depth's
+            # a state saved before the colour step: the pose was depth's
             T_world_prev_depth=d.get("T_world_prev_depth", d["T_world_prev"]),
             colour_agreement=ColourAgreement(
                 [

@@ -75,7 +75,6 @@ __all__ = [
     "TRACKING_FILE",
     "TRAJECTORY_FILE",
     "WORK_DIRS",
-    "discard_unfinished",
     "make_run_dir",
     "submaps_dir",
     "RunFolder",
@@ -188,13 +187,6 @@ def _check_metrics(path: Path) -> None:
         raise RunFolderError(
             f"{path}: not a run's metrics ({why}); the folder is damaged: run the sequence again"
         )
-
-
-def discard_unfinished(run_dir: Path) -> None:
-    """Remove what a run that stopped without a checkpoint left (``config.yaml``, spilled
-    submaps, or the results it could not finish writing): nothing of it can be resumed, and a
-    corrected run must find the folder free."""
-    clear_run_dir(run_dir)
 
 
 def submaps_dir(run_dir: str | Path) -> Path:

@@ -15,7 +15,9 @@ from slam.geometry import exp_se3, inv_T, log_se3
 
 
 def test_the_usual_departure_is_the_median_acceleration_over_the_interval():
-    cfg = TrackingConfig(motion=MotionConfig(unusual_departure_factor=3.0, unusual_departure_window=30))
+    cfg = TrackingConfig(
+        motion=MotionConfig(unusual_departure_factor=3.0, unusual_departure_window=30)
+    )
     recent = [0.2] * 5 + [0.5] * 6  # median 0.5 m/s^2
     assert np.isclose(usual_departure(cfg, recent, 0.1), 3.0 * 0.5 * 0.01)
     # before a third of the window is known, or with the check off: no bound

@@ -473,7 +473,9 @@ def test_the_near_cut_is_dropped_where_near_depth_alone_is_blind():
     p = frame_module.PreparedFrame.build(
         Frame(24, 0.8, color, depth, cfg_s.calibration().K), cfg, None
     )
-    rule = icp_depth_range(p.depth_m, cfg.depth_max_m, cfg.icp.icp_depth_max_m, cfg.icp.icp_near_fraction)
+    rule = icp_depth_range(
+        p.depth_m, cfg.depth_max_m, cfg.icp.icp_depth_max_m, cfg.icp.icp_near_fraction
+    )
     assert rule == cfg.icp.icp_depth_max_m
     near_only = frame_module.depth_constraint(
         p.pyramid[1], frame_module.scale_intrinsics(p.K_track, 2), rule, frame_module.DepthNoise()
@@ -837,13 +839,18 @@ def test_state_dict_round_trip_gives_the_same_next_result(world, model):
     # the previous frame: the next frame's joint alignment reads its grey pyramids (a resumed
     # run lost them, so its first frame could not align with colour)
     pa, pb = a.state.prev_frame, b.state.prev_frame
-    assert pa is not None and pb is not None and (pa.index, pa.timestamp) == (pb.index, pb.timestamp)
+    assert (
+        pa is not None and pb is not None and (pa.index, pa.timestamp) == (pb.index, pb.timestamp)
+    )
     ia, ib = pa.photometric_image(3), pb.photometric_image(3)
     assert ia is not None and ib is not None
     for x, y in zip(ia.intensity + ia.depth + ia.K, ib.intensity + ib.depth + ib.K):
         np.testing.assert_array_equal(x, y)
     assert pb.frame.color_dt_s == pa.frame.color_dt_s
-    assert np.array_equal(pa.T_depth_colour, pb.T_depth_colour) or pa.T_depth_colour is None is pb.T_depth_colour
+    assert (
+        np.array_equal(pa.T_depth_colour, pb.T_depth_colour)
+        or pa.T_depth_colour is None is pb.T_depth_colour
+    )
     # after a gap: RANSAC seeds, so the generator's state matters too
     # (Open3D's kernels are not deterministic: the same tracking twice, even by one tracker,
     # may differ by a pixel's correspondence, a few 1e-5 m; a different RANSAC draw would show

@@ -66,7 +66,9 @@ def test_a_checkpoint_on_a_full_disk_leaves_no_temp_file_and_the_run_goes_on(
     assert result.metrics["frames"] == 30 and (out / METRICS_FILE).is_file()
     assert "not written" in caplog.text and "No space left" in caplog.text
     # an ERROR record: shown under --quiet too (it gave no word there)
-    assert any(r.levelno == logging.ERROR and "not written" in r.getMessage() for r in caplog.records)
+    assert any(
+        r.levelno == logging.ERROR and "not written" in r.getMessage() for r in caplog.records
+    )
     assert not (out / CHECKPOINT_DIR).exists()  # removed with the work folders at the end
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
 
