@@ -39,6 +39,21 @@ def _generate_demo(quiet: bool) -> Path:
         )
 
 
+def _prepare_kernels(quiet: bool) -> None:
+    """The tracker's compiled kernels: on a machine that has not compiled them yet, compiled as
+    their own step before the run (once, a few seconds; numba caches them), with a line saying
+    so."""
+    from slam import kernels
+
+    if kernels.cached() or quiet:
+        return
+    cli_app.console.print(
+        "first run on this machine: compiling the tracker's kernels (once, a few seconds)"
+    )
+    with cli_app.console.status("compiling"):
+        kernels.prepare()
+
+
 class _RunProgress:
     """The progress of `slam run`: on a terminal a bar that appears at the first frame (not
     while the sequence is checked) and shows fps and the tracking state; to a pipe or a file a
@@ -178,6 +193,7 @@ def run(
     _check_run_options(sequence, config, max_frames, resume, workers, rerun, ray)
     if sequence is None and resume is None:
         sequence = _generate_demo(quiet)
+    _prepare_kernels(quiet)
     bar = _RunProgress(quiet, parallel=workers > 1 or _chunked_run(resume))
     try:
         if resume is not None:

@@ -161,9 +161,6 @@ class MappingConfig:
     depth_max_m: float = 3.5  # depth fused up to this range (noise grows as z^2 beyond)
     integrate_color: bool = True  # fuse colour too (coloured mesh, colour ray-casts)
     raycast_weight_threshold: float = 3.0  # tracking's model: surfaces fused at least this often
-    # ray-casts refined by a Newton step on the trilinear TSDF (off: waiting for the kernel
-    # issue, its obstacle is speed; docs/decisions.md)
-    raycast_refine: bool = False
     mesh_weight_threshold: float = 3.0  # the mesh: surfaces fused at least this often
     submap_keyframes: int = 10  # a new submap every this many keyframes (0: a single map)
     submap_min_frames: int = 60  # ... and at least this many frames
@@ -319,6 +316,7 @@ def _build(cls: type, data: Any, where: str) -> Any:
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     data = _moved_into_sections(cls, data, where)
+    data = _without_retired(data, where)
     unknown = sorted(set(data) - names)
     if unknown:
         hints = []
@@ -362,6 +360,21 @@ def _moved_into_sections(cls: type, data: dict[str, Any], where: str) -> dict[st
             "config key '%s.%s' is now '%s.%s.%s': read as that (update the file)",
             where, key, where, home[key], key,
         )  # fmt: skip
+    return out
+
+
+#: keys that no longer exist, and why: read from an older file, they are dropped with a warning
+_RETIRED = {
+    "mapping.raycast_refine": "tracking against the trilinear surface lost on the scene matrix "
+    "(docs/decisions.md)",
+}
+
+
+def _without_retired(data: dict[str, Any], where: str) -> dict[str, Any]:
+    out = dict(data)
+    for key in [k for k in data if f"{where}.{k}" in _RETIRED]:
+        out.pop(key)
+        log.warning("config key '%s.%s' is ignored: %s", where, key, _RETIRED[f"{where}.{key}"])
     return out
 
 

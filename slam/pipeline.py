@@ -20,6 +20,7 @@ from slam.config import SlamConfig
 from slam.data.base import Frame, Sequence
 from slam.data.checks import check_sequence
 from slam.errors import FrameReadError, RunFolderError, RunInterrupted, SlamError
+from slam.kernels import prepare as prepare_kernels
 from slam.records import TrackingStatus
 from slam.results import RunResult
 from slam.run_folder import submaps_dir
@@ -271,6 +272,7 @@ def run(
     checkpoints = Checkpoints(run_dir, checkpoint_every)
     total = len(indices)
     reads = ReadTimes()
+    prepare_kernels()  # compiled once per machine, before the first frame, not during it
     with StopOnSignal() as stop:
         for done, (i, future) in enumerate(
             prefetch(sequence, indices[start:], times=reads), start + 1

@@ -16,7 +16,6 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from slam.camera import backproject
 from slam.config import MappingConfig
 from slam.geometry import inv_T
 from slam.mapping.range_map import RangeMapBuffer, fragments_bound
@@ -84,41 +83,6 @@ def _color_at_surface(
         borderMode=cv2.BORDER_REPLICATE,
     )
     return out
-
-
-#: What the refining ray-cast asks of Open3D: for each pixel the depth of the surface found, the
-#: 8 voxels around it, whether each is observed, their trilinear weights and the weights'
-#: derivatives along the grid's axes (per voxel).
-_TRILINEAR = ["depth", "index", "mask", "interp_ratio"] + [f"interp_ratio_d{a}" for a in "xyz"]
-
-
-def _newton_depth(
-    out: o3d.t.geometry.TensorMap,
-    tsdf: np.ndarray,
-    K: np.ndarray,
-    R_world_cam: np.ndarray,
-    voxel_m: float,
-) -> np.ndarray:
-    """Depth of the TSDF's zero crossing along each pixel's ray, one Newton step on the
-    trilinear TSDF from the surface an *unshifted* ray-cast found (``out``: its
-    :data:`_TRILINEAR` outputs; ``tsdf``: the grid's flat TSDF array): ``t - f / (df/dt)``,
-    with ``t`` the depth and ``f`` the trilinear TSDF there. 0 where not all 8 voxels around
-    the point are observed, or the step is not a descent onto the surface within 1.5 voxels."""
-    depth = out["depth"].numpy()[..., 0]
-    rays_cam = backproject(np.ones_like(depth), K)  # K^-1 [u, v, 1]: per metre of depth
-    rays_world = rays_cam @ R_world_cam.T.astype(np.float32)
-    vals = tsdf[out["index"].numpy()]  # (h, w, 8); unobserved corners have weight 0
-    f = np.einsum("hwk,hwk->hw", out["interp_ratio"].numpy(), vals)
-    dfdt = sum(
-        np.einsum("hwk,hwk->hw", out[f"interp_ratio_d{a}"].numpy(), vals) * rays_world[..., i]
-        for i, a in enumerate("xyz")
-    ) / np.float32(voxel_m)
-    # all 8 corners observed: the 8 mask bytes read as one word
-    observed = out["mask"].numpy().view(np.uint64)[..., 0] == np.uint64(0x0101010101010101)
-    descent = observed & (depth > 0) & (dfdt < -1e-3)  # entering the surface from its front
-    step = -f / np.where(descent, dfdt, np.float32(-1.0))
-    newton = descent & (np.abs(step) < 1.5 * voxel_m)
-    return np.where(newton, depth + step, np.float32(0.0)).astype(np.float32)
 
 
 class TSDFVolume:
@@ -259,8 +223,6 @@ class TSDFVolume:
         depth_range = (depth_min_m, depth_max)
         out = self._march(blocks, K, T_world_shifted, (width, height), attrs, depth_range, weight)
         depth = out["depth"].numpy()[..., 0].astype(np.float32)
-        if self.cfg.raycast_refine and not with_color:
-            depth = self._refine(depth, blocks, K, T_world_cam, depth_range, weight)
         bad = ~np.isfinite(depth)
         if bad.any():
             log.debug("ray-cast produced %d non-finite depths", int(bad.sum()))
@@ -318,29 +280,6 @@ class TSDFVolume:
             blocks, _tensor(K, np.float64), _tensor(T_cam_world, np.float64), width, height,
             attrs, 1.0, *depth_range, weight, self.cfg.trunc_voxels, down,
         )  # fmt: skip
-
-    def _refine(
-        self,
-        depth: np.ndarray,
-        blocks: o3c.Tensor,
-        K: np.ndarray,
-        T_world_cam: np.ndarray,
-        depth_range: tuple[float, float],
-        weight: float,
-    ) -> np.ndarray:
-        """``depth`` (a ray-cast from ``T_world_cam`` moved by half a voxel) with each pixel a
-        Newton step can refine put on the trilinear surface (:func:`_newton_depth`): a second
-        march, from the unshifted camera, so that the trilinear read places voxel (i, j, k)
-        where integration measured it. The range map needs no growing: the first march grew
-        it to twice its need, and half a voxel moves the blocks' fragment bound by little."""
-        h, w = depth.shape
-        out = self.vbg.ray_cast(
-            blocks, _tensor(K, np.float64), _tensor(inv_T(T_world_cam), np.float64), w, h,
-            _TRILINEAR, 1.0, *depth_range, weight, self.cfg.trunc_voxels, _range_map_factor(w, h),
-        )  # fmt: skip
-        tsdf = self.vbg.attribute("tsdf").reshape((-1,)).numpy()
-        refined = _newton_depth(out, tsdf, K, T_world_cam[:3, :3], self.cfg.voxel_size_m)
-        return np.where(refined > 0, refined, depth)
 
     def render(
         self,

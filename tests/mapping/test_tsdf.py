@@ -197,36 +197,3 @@ def test_raycast_colour_sits_on_its_surface_point():
     # the colour's sideways offset (metres): measured 1.75 mm (6.75 mm without the correction;
     # what remains varies with the plane's place in the voxel grid: 1.5 mm at 1 m, 0 at 3 m)
     assert abs(best) < 0.0025, best
-
-
-def test_a_refined_raycast_puts_depth_on_the_fused_surface():
-    """Open3D's march reads each sample's TSDF from the voxel below it, so its depth errs in a
-    pattern fixed to the grid (about 3 mm median at 1 cm voxels on exact depth); with
-    ``raycast_refine`` a Newton step on the trilinear TSDF puts depth-only renders on the
-    surface. Renders that carry colour are left as they are. As in tracking: a frame fused at
-    640x480, the model rendered at 320x240 from the next frame's pose."""
-    from slam.camera import scale_intrinsics
-    from tests.conftest import room_scene
-
-    room = room_scene()
-    K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
-    K_half = scale_intrinsics(K, 2)
-    T0 = look_at((1.2, -1.0, 1.4), (-0.4, 0.5, 0.6))
-    T1 = look_at((1.17, -0.98, 1.41), (-0.4, 0.52, 0.6))  # 3.6 cm away
-    truth = render_depth(room, K_half, 320, 240, T1)
-    errors, coloured = {}, {}
-    for refine in (False, True):
-        vol = TSDFVolume(MappingConfig(raycast_refine=refine), has_color=False)
-        vol.integrate(render_depth(room, K, 640, 480, T0), None, K, T0)
-        r = vol.raycast(K_half, 320, 240, T1, False, False, frustum_depth_m=truth)
-        both = (r.depth_m > 0) & (truth > 0)
-        assert both.sum() > 0.75 * (truth > 0).sum()  # the frame sees a little more
-        e = np.abs(r.depth_m[both] - truth[both])
-        errors[refine] = (np.median(e), np.percentile(e, 90))
-        coloured[refine] = vol.raycast(K_half, 320, 240, T1, False, True, frustum_depth_m=truth)
-    assert errors[False][0] > 2e-3, errors  # the pattern the refinement removes
-    assert errors[True][0] < 0.4 * errors[False][0], errors
-    assert errors[True][1] < 0.5 * errors[False][1], errors
-    np.testing.assert_array_equal(coloured[True].depth_m, coloured[False].depth_m)
-
-
