@@ -41,7 +41,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("frontend | mapping", ("slam.frontend", "slam.mapping")),
     ("backend", ("slam.backend",)),
     ("loops", ("slam.loops",)),
-    ("system", ("slam.system", "slam.results", "slam.run_metrics")),
+    ("system", ("slam.system", "slam.results", "slam.run_metrics", "slam.kernels")),
     ("run folder", ("slam.run_folder",)),
     ("applications", ("slam.pipeline", "slam.api", "slam.chunked", "slam.tools", "slam.synthetic", "slam.demo")),
     ("cli", ("slam.cli", "slam.cli_app", "slam.cli_eval", "slam.__main__", "slam")),
