@@ -862,3 +862,18 @@ def test_state_dict_round_trip_gives_the_same_next_result(world, model):
     assert [getattr(sa, k) for k in discrete] == [getattr(sb, k) for k in discrete]
     assert sa.ransac_inliers > 0 and sa.overlap == pytest.approx(sb.overlap, abs=1e-3)
     assert a.state_dict()["rng"] == b.state_dict()["rng"]
+
+
+def test_the_kernels_prepared_before_a_run_are_the_ones_alignment_calls(world, model):
+    """``slam.kernels.prepare`` runs each compiled kernel on the types the tracker passes: a
+    joint alignment against the model afterwards compiles nothing more (else the first colour
+    frame of a run would pause for it)."""
+    from slam import kernels
+
+    kernels.prepare()
+    prepared = {d.__name__: len(d.signatures) for d in kernels._dispatchers()}
+    tracker = _tracker_at(world, 10, photometric_reference="keyframe")
+    att = tracker.predict(tracker.prepare(world.frame(11)))
+    att.photometric = 1.0
+    align_to_model(tracker.cfg, att, model, world.poses[11], False)
+    assert {d.__name__: len(d.signatures) for d in kernels._dispatchers()} == prepared
