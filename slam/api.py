@@ -29,6 +29,7 @@ from slam.run_folder import (
 )
 from slam.run_folder.checkpoint import STATE_FILE, has_checkpoint
 from slam.run_folder.lock import RunLock
+from slam.saved_map import Map
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,8 @@ def run_sequence(
     ray_address: str | None = None,
     executor: str = "auto",
     worker_threads: int | None = None,
+    map_dir: str | Path | None = None,
+    first_frame: int | None = None,
 ) -> tuple[RunResult, Path]:
     """Open a sequence folder (``None``: the built-in synthetic demo), run SLAM, save the run
     folder. Config: ``config`` if given, else defaults overridden by the YAML at ``config_path``.
@@ -70,8 +73,20 @@ def run_sequence(
     kill without redoing it. ``progress`` then counts the frames the workers have stepped
     (``status`` None); the per-frame hooks (``on_frame``, ``rerun``) see no frames: the frames
     are tracked in other processes.
+
+    ``map_dir``: a finished run folder whose map (``map/``) the sequence is localised in
+    instead of mapped (:mod:`slam.localisation`; read only, so several runs may share it;
+    a camera other than the map's is refused before the first frame). ``first_frame``: start
+    at this frame of the sequence (``dataset.first_frame``: a recording split in two).
     """
     cfg = config if config is not None else load_config(config_path)
+    if first_frame is not None:
+        cfg.dataset.first_frame = first_frame
+    saved = None
+    if map_dir is not None:
+        if workers > 1:
+            raise ConfigError("--map localises on one worker: leave out --workers")
+        saved = Map.load(map_dir)
     if max_frames is not None:
         if max_frames < 1:
             raise ConfigError(f"max_frames must be >= 1 (or None for all), got {max_frames}")
@@ -91,6 +106,9 @@ def run_sequence(
         # the calibration the run uses, whatever chose it (calibration.yaml, TUM defaults by
         # folder name, overrides): config.yaml then reproduces it on a renamed copy
         cfg.dataset.calibration = dict(seq.calibration.to_dict())
+        if saved is not None:
+            c = seq.calibration
+            saved.check_camera(c.K, (c.width, c.height), f"{seq.path}")
         recorder = _recorder(rerun, seq.name)
         write_config(out, cfg)
         if workers > 1:
@@ -104,7 +122,8 @@ def run_sequence(
 
             def run_fn(hook: FrameCallback | None) -> RunResult:
                 return run(seq, cfg, progress=progress, run_dir=out,
-                           checkpoint_every=checkpoint_every, on_frame=hook)  # fmt: skip
+                           checkpoint_every=checkpoint_every, on_frame=hook,
+                           map=saved)  # fmt: skip
 
         result = _recorded(recorder, run_fn, on_frame, out)
     return result, out

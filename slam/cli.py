@@ -132,6 +132,19 @@ def run(
     max_frames: Annotated[
         Optional[int], typer.Option("--max-frames", min=1, help="Process at most N frames.")
     ] = None,
+    first_frame: Annotated[
+        Optional[int],
+        typer.Option("--first-frame", min=0, help="Start at frame N of the sequence (0-based)."),
+    ] = None,
+    map_dir: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--map",
+            help="Localise the sequence in the map of this finished run folder (its map/) "
+            "instead of mapping it: poses in the map's world frame, nothing fused; frames the "
+            "map does not explain get no pose. The map is only read.",
+        ),
+    ] = None,
     checkpoint_every: Annotated[
         Optional[int],
         typer.Option(
@@ -191,6 +204,10 @@ def run(
 
     setup_logging(verbose, quiet)
     _check_run_options(sequence, config, max_frames, resume, workers, rerun, ray)
+    if resume is not None and (map_dir is not None or first_frame is not None):
+        raise SlamError(
+            "--resume continues a run as it was started: leave out --map and --first-frame"
+        )
     if sequence is None and resume is None:
         sequence = _generate_demo(quiet)
     _prepare_kernels(quiet)
@@ -215,6 +232,8 @@ def run(
                 rerun=rerun,
                 workers=workers,
                 ray_address=ray,
+                map_dir=map_dir,
+                first_frame=first_frame,
             )
     finally:
         bar.stop()

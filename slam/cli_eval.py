@@ -103,6 +103,8 @@ def echo_run(ev) -> None:
     )
     typer.echo(f"run          {ev.run_dir}")
     typer.echo(f"ground truth {ev.ground_truth}")
+    if ev.localisation is not None:
+        echo_localisation(ev.localisation)
     if ev.loops_accepted is not None:
         typer.echo(f"loops        {ev.loops_accepted} accepted")
     if ev.odometry is None:
@@ -115,6 +117,22 @@ def echo_run(ev) -> None:
         typer.echo(f"{name:{width}}  {a:>10}  {b:>10}")
     for note in rpe_notes(ev):
         typer.echo(note)
+
+
+def echo_localisation(loc: dict) -> None:
+    """A localisation run's lines: its map, the frames placed in it, and the error in its
+    frame (the map run's alignment to the ground truth, none of its own)."""
+    n, miss = loc.get("frames_localised") or 0, loc.get("frames_not_localised") or 0
+    first = loc.get("first_localised_frame")
+    typer.echo(f"map          {loc.get('map')}")
+    where = "" if first is None else f", the first at frame {first}"
+    typer.echo(f"localised    {n} of {n + miss} frames{where}; {miss} not localised")
+    if loc.get("ate_rmse_map_frame_m") is not None:
+        typer.echo(
+            f"map frame    ATE rmse {loc['ate_rmse_map_frame_m']:.4f} m (no alignment of its own)"
+        )
+    elif loc.get("map_frame_error"):
+        typer.echo(f"map frame    n/a: {loc['map_frame_error']}")
 
 
 def rpe_notes(ev) -> list[str]:
@@ -238,6 +256,15 @@ def _eval_run_folder(
     from slam.tools import eval as slam_eval
 
     run = RunFolder(run_dir)
+    run.require_complete()
+    loc = slam_eval.localisation_summary(run)
+    if loc is not None and not loc["frames_localised"]:  # nothing to evaluate: say so
+        if as_json:
+            typer.echo(json.dumps({"run_dir": str(run_dir), "localisation": loc}))
+        else:
+            typer.echo(f"run          {run_dir}")
+            echo_localisation(loc)
+        return
     ev = slam_eval.evaluate_run(run, gt_file, t_max_diff, correct_scale, deltas, drift_align)
     if plot is not None:
         from slam.tools.plots import plot_trajectories

@@ -31,6 +31,7 @@ class DatasetConfig:
     path: str | None = None  # the sequence folder (recorded so a run folder can be re-evaluated)
     layout: str = "auto"  # auto | tum | 7scenes
     calibration: dict[str, float | None] = field(default_factory=dict)
+    first_frame: int = 0  # the run starts at this frame of the sequence (a split recording)
     max_frames: int | None = None  # read at most this many frames
     stride: int = 1  # use every n-th frame
     # colour pixel-aligned with depth? null: as the sequence says (TUM: yes, 7-Scenes: no)
@@ -259,6 +260,9 @@ class OutputConfig:
 
     save_mesh: bool = True  # mesh.ply
     save_tracking_log: bool = True  # tracking.csv
+    # map/: keyframes and the TSDF under the final poses, for `slam run --map` (about 1/3 of
+    # the run folder's size at float16 TSDF, uint8 colour, compressed)
+    save_map: bool = True
 
 
 @dataclass

@@ -51,6 +51,7 @@ Check = tuple[bool, str, Any, str]
 def _dataset(d: DatasetConfig) -> list[Check]:
     return [  # fmt: skip
         (d.layout in LAYOUT_NAMES, "dataset.layout", d.layout, layout_names_text()),
+        (d.first_frame >= 0, "dataset.first_frame", d.first_frame, ">= 0"),
         (d.max_frames is None or d.max_frames >= 1, "dataset.max_frames", d.max_frames, ">= 1 (or null for all)"),
         (d.stride >= 1, "dataset.stride", d.stride, ">= 1"),
     ]

@@ -25,6 +25,7 @@ from slam.records import TrackingStatus
 from slam.results import RunResult
 from slam.run_folder import submaps_dir
 from slam.run_folder.checkpoint import CheckpointError, read_checkpoint, write_checkpoint
+from slam.saved_map import Map
 from slam.system import FrameResult, Slam
 from slam.trajectory import Trajectory, as_written
 
@@ -41,8 +42,9 @@ FrameCallback = Callable[[Frame, FrameResult], None]
 
 
 def frame_indices(sequence: Sequence, cfg: SlamConfig) -> list[int]:
-    """The sequence's frames a run processes (``dataset.stride``, ``dataset.max_frames``)."""
-    idx = list(range(0, len(sequence), max(cfg.dataset.stride, 1)))
+    """The sequence's frames a run processes (``dataset.first_frame``, ``dataset.stride``,
+    ``dataset.max_frames``)."""
+    idx = list(range(cfg.dataset.first_frame, len(sequence), max(cfg.dataset.stride, 1)))
     if cfg.dataset.max_frames is not None:
         idx = idx[: cfg.dataset.max_frames]
     return idx
@@ -94,13 +96,17 @@ def color_registered(sequence: Sequence, cfg: SlamConfig) -> bool:
     return sequence.color_registered if registered is None else registered
 
 
-def new_system(sequence: Sequence, cfg: SlamConfig, spill_dir: str | Path | None) -> Slam:
-    """A fresh :class:`Slam` for ``sequence``; finished submaps wait in ``spill_dir``."""
+def new_system(
+    sequence: Sequence, cfg: SlamConfig, spill_dir: str | Path | None, map: Map | None = None
+) -> Slam:
+    """A fresh :class:`Slam` for ``sequence``; finished submaps wait in ``spill_dir``;
+    ``map``: localise in that saved map instead of mapping."""
     return Slam(
         cfg,
         has_color=sequence.has_color,
         spill_dir=None if spill_dir is None else str(spill_dir),
         color_registered=color_registered(sequence, cfg),
+        map=map,
     )
 
 
@@ -241,6 +247,7 @@ def run(
     checkpoint_every: int | None = None,
     resume: bool = False,
     on_frame: FrameCallback | None = None,
+    map: Map | None = None,  # noqa: A002 - the public name of the argument
 ) -> RunResult:
     """Run SLAM over a sequence. Ground truth, if the sequence has it, is used only to evaluate.
 
@@ -252,16 +259,26 @@ def run(
     run). Called from the main thread, a first SIGINT (Ctrl-C) or SIGTERM stops the run after
     the current frame, saves the state (with a run folder) and raises
     :class:`~slam.errors.RunInterrupted`, whose message says how to resume.
+    ``map``: localise the sequence in this saved map (:meth:`slam.saved_map.Map.load`)
+    instead of mapping it (no checkpoints: a localisation run is cheap to run again).
     """
     cfg = (config or SlamConfig()).validate()
+    if map is not None:
+        if resume:
+            raise SlamError(
+                "a localisation run (map=...) has no checkpoint to resume: run it again"
+            )
+        checkpoint_every = 0
     if (checkpoint_every or resume) and run_dir is None:
         raise SlamError("checkpoints need a run folder: pass run_dir")
     if checkpoint_every is not None and checkpoint_every < 0:
         raise SlamError(f"checkpoint_every must be >= 0 frames, got {checkpoint_every}")
     indices = frame_indices(sequence, cfg)
     if not indices:
-        raise SlamError(f"{sequence.path}: no frames to process (check dataset.max_frames/stride)")
-    system = new_system(sequence, cfg, None if run_dir is None else submaps_dir(run_dir))
+        raise SlamError(
+            f"{sequence.path}: no frames to process (check dataset.first_frame/max_frames/stride)"
+        )
+    system = new_system(sequence, cfg, None if run_dir is None else submaps_dir(run_dir), map)
     start = 0
     if resume:
         assert run_dir is not None
@@ -348,11 +365,15 @@ def _complete_metrics(
         m.resumed_at_frame = resumed_at
     m.peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
     m.read_ms_per_frame = reads.ms_per_frame()
+    if len(result.trajectory) == 0:
+        return  # nothing to evaluate (a localisation that placed no frame)
     m.update(
         evaluate_against_ground_truth(
             sequence, result.trajectory, result.odometry, result.pose_graph
         )
     )
+    if m.get("map") is not None:
+        m.update(evaluate_in_map_frame(sequence, result.trajectory, m["map"]))
 
 
 def _real_time(m: dict[str, Any]) -> str:
@@ -374,6 +395,21 @@ def summary_line(m: dict[str, Any]) -> str:
     if "ate_rmse_m" in m:
         line += f", ATE RMSE {m['ate_rmse_m']:.4f} m (odometry {m['ate_rmse_odometry_m']:.4f} m)"
     return line
+
+
+def evaluate_in_map_frame(sequence: Sequence, traj: Trajectory, map_run: str) -> dict[str, Any]:
+    """A localisation run's ``ate_rmse_map_frame_m`` (:func:`slam.tools.eval.map_frame_ate`),
+    or ``map_frame_error`` saying why it could not be measured; ``{}`` without ground truth."""
+    from slam.tools import eval as slam_eval
+
+    try:
+        gt, _ = slam_eval.sequence_ground_truth(sequence.path, sequence)
+        if gt is None:
+            return {}
+        return {"ate_rmse_map_frame_m": slam_eval.map_frame_ate(gt, as_written(traj), map_run)}
+    except SlamError as exc:
+        log.warning("evaluation in the map's frame failed: %s", exc)
+        return {"map_frame_error": str(exc)}
 
 
 def evaluate_against_ground_truth(

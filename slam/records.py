@@ -118,6 +118,12 @@ class FrameLog:
 _OPTIONAL = frozenset(
     {
         "resumed_at_frame",
+        "map",
+        "frames_localised",
+        "frames_not_localised",
+        "first_localised_frame",
+        "ate_rmse_map_frame_m",
+        "map_frame_error",
         "read_ms_per_frame",
         "calibration_source",
         "ate_rmse_m",
@@ -184,6 +190,12 @@ class RunMetrics:
     # images of the recording left out because they have no partner (TUM: rgb/depth pairs)
     unpaired_images: dict[str, int] = field(default_factory=dict)
     calibration_source: str | None = None  # where the sequence's calibration came from
+    # a localisation run (slam run --map): the map's run folder, the frames placed in it, the
+    # frames never placed (no pose made up for them), the first frame placed (sequence index)
+    map: str | None = None
+    frames_localised: int | None = None
+    frames_not_localised: int | None = None
+    first_localised_frame: int | None = None
     # set when the run folder is written (slam.run_folder.save_run): the software that ran
     slam_version: str | None = None
     git_commit: str | None = None  # null when not run from a git checkout
@@ -197,6 +209,10 @@ class RunMetrics:
     matched_poses: int | None = None
     drift_percent: float | None = None
     evaluation_error: str | None = None
+    # a localisation run with ground truth: the error in the map's world frame, the map run's
+    # alignment to its ground truth applied and none of its own (a map frame 20 cm off shows)
+    ate_rmse_map_frame_m: float | None = None
+    map_frame_error: str | None = None  # why that could not be measured
 
     def __post_init__(self) -> None:
         # given at construction: the optional keys with a value

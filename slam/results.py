@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from slam.loops.closer import LoopCloser
     from slam.mapping.submaps import SubmapMap
     from slam.records import TrackingStatus
+    from slam.saved_map import Map
 
 
 @dataclass
@@ -37,6 +38,7 @@ class RunResult:
     loop_closer: LoopCloser | None = None  # keyframes, pose graph and loop records
     segments: dict[int, Trajectory] = field(default_factory=dict)
     pose_graph: Trajectory | None = None  # frames following the pose graph alone (before BA)
+    map: Map | None = None  # the map to save (keyframes, TSDF) for later localisation runs
 
     @property
     def poses(self) -> np.ndarray:

@@ -19,6 +19,7 @@ and the metrics (:mod:`slam.run_metrics`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections import deque
@@ -34,6 +35,7 @@ from slam.data.base import Frame, checked_frame
 from slam.errors import SlamError
 from slam.frontend.tracker import Tracker
 from slam.keyframe import Keyframe
+from slam.localisation import Localisation
 from slam.loops.closer import KeyframeLink, LoopCloser
 from slam.loops.recovery import LossRecovery
 from slam.loops.relocalisation import Relocaliser
@@ -41,6 +43,7 @@ from slam.mapping.submaps import SubmapMap
 from slam.records import FrameLog, LoopRecord, TrackingStatus
 from slam.results import RunResult
 from slam.run_metrics import RunRecord, run_metrics
+from slam.saved_map import Map
 from slam.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
@@ -124,7 +127,10 @@ class Slam:
     """Stepwise RGB-D SLAM (see the module docstring). ``has_color``: frames carry colour
     (ORB features, coloured mesh); ``color_registered``: colour pixels are depth's rays;
     ``spill_dir``: where finished submaps wait on disk (a run folder's submaps folder, so a
-    checkpoint can refer to them), default a temporary folder."""
+    checkpoint can refer to them), default a temporary folder. ``map``: a saved map
+    (:meth:`slam.saved_map.Map.load`) to localise the frames in instead of mapping them
+    (:mod:`slam.localisation`): poses in the map's world frame, nothing fused, no keyframes
+    or loops added; frames the map does not explain get no pose."""
 
     def __init__(
         self,
@@ -132,6 +138,7 @@ class Slam:
         has_color: bool = True,
         spill_dir: str | None = None,
         color_registered: bool = True,
+        map: Map | None = None,  # noqa: A002 - the public name of the argument
     ) -> None:
         self.cfg = cfg = (config or SlamConfig()).validate()
         self.has_color = has_color
@@ -151,6 +158,10 @@ class Slam:
         )  # fmt: skip
         self.recovery = LossRecovery(
             t, self.tracker, self.model, relocaliser, cfg.backend.loop_sigma_m
+        )
+        self.map = map
+        self.localisation = (
+            None if map is None else Localisation(cfg, self.tracker, map, self.closer.verifier)
         )
         self.clock = FrameClock(t.motion.gap_factor)
         self.frames = FrameLog()  # the frames with a pose
@@ -184,16 +195,25 @@ class Slam:
         t_start = time.perf_counter()
         ratio, gap = self.clock.tick(frame.timestamp)
         prepared = self.tracker.prepare(frame)
-        out = self.recovery.track(prepared, ratio, gap)
+        loc = self.localisation
+        if loc is not None:
+            h, w = frame.depth_m.shape
+            loc.saved.check_camera(frame.K, (w, h), f"frame {frame.index}")
+            out = loc.track(prepared, ratio, gap)
+        else:
+            out = self.recovery.track(prepared, ratio, gap)
         T, status = out.T_world_cam, out.status
         t_tracked = time.perf_counter()
-        loops = self._keyframe(out.link) if T is not None and status.keyframe else []
+        mapping = loc is None
+        loops = self._keyframe(out.link) if mapping and T is not None and status.keyframe else []
         t_loop = time.perf_counter()
         if T is not None:
-            self.model.integrate(frame.depth_m, frame.color, frame.K, T)
-            self.frames.append(
-                frame.index, frame.timestamp, T, self.recovery.run, self.recovery.segment
+            if mapping:
+                self.model.integrate(frame.depth_m, frame.color, frame.K, T)
+            run, segment = (
+                (loc.run, 0) if loc is not None else (self.recovery.run, self.recovery.segment)
             )
+            self.frames.append(frame.index, frame.timestamp, T, run, segment)
             self.clock.last_pose_t = frame.timestamp
         t_end = time.perf_counter()
         self.stage_ms["tracking"] += (t_tracked - t_start) * 1e3
@@ -258,7 +278,10 @@ class Slam:
     # --- results
     def finish(self) -> RunResult:
         """The run's result: the final trajectory (every frame follows its keyframes' optimised
-        poses), the odometry, the mesh of the global model and the metrics."""
+        poses), the odometry, the mesh of the global model and the metrics. A localisation
+        run's result is its frames' poses in the map, as tracked (:meth:`_localised`)."""
+        if self.localisation is not None:
+            return self._localised()
         if not len(self.frames):
             raise SlamError(
                 "no frame could be tracked: every frame was unreadable or had no usable depth "
@@ -286,7 +309,7 @@ class Slam:
             for r in values
             if r != main_root
         }
-        mesh, map_blocks = self._mesh(poses, main_root, stage_ms)
+        mesh, map_blocks, saved = self._mesh(poses, main_root, stage_ms)
         loop_s = self.elapsed_s + self.stage_ms["load"] / 1e3  # the frame loop's wall time
         record = RunRecord(
             list(self.statuses), frames, self.skipped, self.recovery.relocalisations, stage_ms,
@@ -301,31 +324,80 @@ class Slam:
             Trajectory(stamps[keep].copy(), poses.final[keep]),
             Trajectory(stamps[keep], poses.odometry[keep]),
             mesh, metrics, list(self.statuses), self.cfg, self.model, closer, others,
-            Trajectory(stamps[keep].copy(), poses.pose_graph[keep]),
+            Trajectory(stamps[keep].copy(), poses.pose_graph[keep]), saved,
         )  # fmt: skip
 
-    def _mesh(self, poses: Any, main_root: int, stage_ms: dict[str, float]) -> tuple[Any, int]:
+    def _localised(self) -> RunResult:
+        """A localisation run's result: the poses as tracked in the map (nothing to optimise:
+        the map is fixed), no mesh (the map's is the map run's), and how many frames were
+        placed in the map, from when; none placed is a result too, not an error."""
+        self.finished = True
+        loc, frames = self.localisation, self.frames
+        assert loc is not None
+        stamps = np.array(frames.timestamp, float)
+        poses = np.stack(frames.pose) if len(frames) else np.zeros((0, 4, 4))
+        loop_s = self.elapsed_s + self.stage_ms["load"] / 1e3
+        record = RunRecord(
+            list(self.statuses), frames, self.skipped, loc.registrations, dict(self.stage_ms),
+            loop_s, loop_s,
+        )  # fmt: skip
+        metrics = run_metrics(record, self.closer, 0, 0, {}, len(frames), 0, 0, 0)
+        metrics.map = str(loc.saved.source) if loc.saved.source is not None else None
+        metrics.frames_localised = len(frames)
+        metrics.frames_not_localised = len(self.statuses) - len(frames)
+        if loc.first_localised is not None:
+            metrics.first_localised_frame = loc.first_localised
+        if not len(frames):
+            log.warning(
+                "no frame was localised in the map (%s): a recording of another place, or of "
+                "the same place with too little in common with the map's keyframes",
+                loc.saved.source,
+            )
+        traj = Trajectory(stamps, poses)
+        return RunResult(traj, Trajectory(stamps.copy(), poses.copy()), None, metrics,
+                         list(self.statuses), self.cfg)  # fmt: skip
+
+    def _mesh(
+        self, poses: Any, main_root: int, stage_ms: dict[str, float]
+    ) -> tuple[Any, int, Map | None]:
         """The mesh of the main map component's submaps under their final anchors (None when
-        ``output.save_mesh`` is off) and the map's block count; records the end's timings."""
+        ``output.save_mesh`` is off), the map's block count and the map to save
+        (``output.save_map``: the main component's keyframes at their final poses and its
+        TSDF); records the end's timings."""
         kfs, closer, model = self.closer.keyframes, self.closer, self.model
         main = {
             sm.id
             for sm in model.submaps
             if closer.segment_root(kfs[sm.anchor_kf].segment) == main_root
         }
-        if not self.cfg.output.save_mesh:
+        out_cfg = self.cfg.output
+        if not (out_cfg.save_mesh or out_cfg.save_map):
             stage_ms["meshing"] = 0.0
-            return None, model.n_blocks
+            return None, model.n_blocks, None
         anchors = (
             {sm.id: poses.T_world_kf[sm.anchor_kf] for sm in model.submaps}
             if poses.corrected
             else None
         )
-        out = final_mesh(model, anchors, None if len(main) == len(model.submaps) else main)
+        out = final_mesh(
+            model, anchors, None if len(main) == len(model.submaps) else main, out_cfg.save_mesh
+        )
         if out.reintegration_ms is not None:
             stage_ms["reintegration"] = out.reintegration_ms
         stage_ms["meshing"] = out.meshing_ms
-        return out.mesh, out.map_blocks
+        saved = None
+        if out_cfg.save_map and model.camera is not None:
+            keyframes = [
+                dataclasses.replace(kf, T_world_cam=poses.T_world_kf[kf.id])
+                for kf in kfs
+                if closer.segment_root(kf.segment) == main_root
+            ]
+            K, size = model.camera
+            saved = Map(
+                keyframes, out.volume, out.T_world_volume, 1.0 if out.refused else None, K,
+                size, self.has_color, self.tracker.color_registered,
+            )  # fmt: skip
+        return out.mesh, out.map_blocks, saved
 
     # --- checkpoints
     def state_dict(self) -> dict[str, Any]:

@@ -115,20 +115,35 @@ class FinalMesh:
     map_blocks: int
     reintegration_ms: float | None  # re-fusion of several submaps into one volume
     meshing_ms: float
+    volume: Any  # the global model: a TSDFVolume (one submap's own, or the re-fused one)
+    T_world_volume: np.ndarray  # where that volume sits in the world frame
+    refused: bool  # several submaps re-fused: each surface carries one view's weight
 
 
 def final_mesh(
-    model: Any, T_world_anchors: dict[int, np.ndarray] | None, include: set[int] | None
+    model: Any,
+    T_world_anchors: dict[int, np.ndarray] | None,
+    include: set[int] | None,
+    mesh: bool = True,
 ) -> FinalMesh:
-    """Marching cubes on the global model: the submaps in ``include`` (None: all) under their
-    corrected anchor poses (``T_world_anchors`` by submap id; None: as fused). Several submaps
-    are first re-fused into one volume (:meth:`slam.mapping.submaps.SubmapMap.rebuild`)."""
+    """The global model, and marching cubes on it (``mesh``): the submaps in ``include``
+    (None: all) under their corrected anchor poses (``T_world_anchors`` by submap id; None: as
+    fused). Several submaps are first re-fused into one volume
+    (:meth:`slam.mapping.submaps.SubmapMap.rebuild`); a single one is its own volume, moved
+    rigidly."""
     t0 = time.perf_counter()
     chosen = [sm for sm in model.submaps if include is None or sm.id in include]
-    if len(chosen) > 1:
+    if len(chosen) == 1:
+        sm = chosen[0]
+        volume, blocks, reintegration_ms = model.volume(sm), model.n_blocks, None
+        T_world_volume = np.asarray((T_world_anchors or {}).get(sm.id, sm.T_world_anchor), float)
+    else:
         volume = model.rebuild(T_world_anchors, include)
-        t1 = time.perf_counter()
-        mesh = volume.extract_mesh()
-        return FinalMesh(mesh, volume.n_blocks, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3)
-    mesh = model.extract_mesh(T_world_anchors, include)
-    return FinalMesh(mesh, model.n_blocks, None, (time.perf_counter() - t0) * 1e3)
+        blocks, T_world_volume = volume.n_blocks, np.eye(4)
+        reintegration_ms = (time.perf_counter() - t0) * 1e3
+    t1 = time.perf_counter()
+    out = volume.extract_mesh().transform(T_world_volume) if mesh else None
+    meshing_ms = (time.perf_counter() - t1) * 1e3 if mesh else 0.0
+    return FinalMesh(
+        out, blocks, reintegration_ms, meshing_ms, volume, T_world_volume, len(chosen) != 1
+    )

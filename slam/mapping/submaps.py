@@ -264,6 +264,14 @@ class SubmapMap:
             self._spill(self.submaps[-2])  # the previous submap is complete
 
     @property
+    def camera(self) -> tuple[np.ndarray, tuple[int, int]] | None:
+        """The intrinsics and image size (width, height) of the frames fused (None before
+        the first)."""
+        if self._K is None or self._size is None:
+            return None
+        return self._K.copy(), self._size
+
+    @property
     def depth_max_m(self) -> float:
         """Depth beyond this is never fused (``mapping.depth_max_m``)."""
         return float(self.cfg.depth_max_m)

@@ -33,6 +33,7 @@ from slam.run_folder.layout import (
     MESH_FILE,
     METRICS_FILE,
     ODOMETRY_FILE,
+    OUTPUT_DIRS,
     POSE_GRAPH_FILE,
     RECORDING_FILE,
     REPORT_FILE,
@@ -93,7 +94,7 @@ __all__ = [
 
 def run_outputs(run_dir: Path) -> list[Path]:
     """The run outputs and working folders present in ``run_dir``."""
-    found = [run_dir / n for n in RUN_FILES + WORK_DIRS if (run_dir / n).exists()]
+    found = [run_dir / n for n in RUN_FILES + OUTPUT_DIRS + WORK_DIRS if (run_dir / n).exists()]
     for pattern in RUN_GLOBS:
         found += sorted(run_dir.glob(pattern))
     return found

@@ -37,6 +37,7 @@ SEGMENT_PREFIX = "segment_"
 SEGMENT_SUFFIX = ".txt"
 SEGMENT_GLOB = f"{SEGMENT_PREFIX}*{SEGMENT_SUFFIX}"
 #: Working folders of a run in progress (removed once the results are written).
+MAP_DIR = "map"  # the map a later run localises in (slam.saved_map)
 CHECKPOINT_DIR = "checkpoint"
 SUBMAPS_DIR = "submaps"
 #: ``slam run --workers N``: one folder per chunk (its state and submaps) until the join is done
@@ -61,6 +62,7 @@ RUN_FILES = (
 )
 RUN_GLOBS = (REPORT_PNG_GLOB, SEGMENT_GLOB)
 WORK_DIRS = (CHECKPOINT_DIR, SUBMAPS_DIR, CHUNKS_DIR)
+OUTPUT_DIRS = (MAP_DIR,)
 
 
 def segment_file(segment: int) -> str:

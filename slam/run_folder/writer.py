@@ -13,6 +13,7 @@ from slam.errors import RunFolderError
 from slam.run_folder.layout import (
     CONFIG_FILE,
     LOOPS_FILE,
+    MAP_DIR,
     MESH_FILE,
     METRICS_FILE,
     ODOMETRY_FILE,
@@ -50,7 +51,8 @@ def write_config(run_dir: str | Path, config: SlamConfig) -> Path:
 
 def save_run(result: RunResult, out_dir: str | Path, overwrite: bool = False) -> Path:
     """Write the run folder: trajectory.txt, odometry.txt, mesh.ply, config.yaml, tracking.csv,
-    pose_graph.g2o, loops.json, segment_N.txt (map segments never joined to the main one) and,
+    pose_graph.g2o, loops.json, segment_N.txt (map segments never joined to the main one), map/
+    (the keyframes and TSDF a later run can localise in: :mod:`slam.saved_map`) and,
     last, metrics.json, which marks the folder as holding a complete run, with the version and
     git commit of the software (``result.metrics`` gets them too). A folder that already holds
     a complete run is refused unless ``overwrite``. Every file is written atomically."""
@@ -94,5 +96,9 @@ def _write_all(result: RunResult, out: Path) -> None:
         result.loop_closer.graph.write_g2o(out / POSE_GRAPH_FILE)
         loops = json.dumps(result.loop_closer.loops_json(), indent=1) + "\n"
         atomic_write_text(out / LOOPS_FILE, loops)
+    if result.map is not None:
+        from slam.config import SlamConfig
+
+        result.map.save(out / MAP_DIR, result.config or SlamConfig())
     result.metrics.update(software())
     atomic_write_text(out / METRICS_FILE, json.dumps(result.metrics.as_json(), indent=2) + "\n")

@@ -34,12 +34,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from slam.errors import RunFolderError
+from slam.errors import RunFolderError, SlamError
 from slam.run_folder import ODOMETRY_FILE, RunFolder
 from slam.run_folder.reader import same_trajectory
 from slam.tools.eval_metrics import (
     MIN_RPE_PAIRS,
     align_trajectory,
+    alignment,
     ape_per_pose,
     associate,
     ate,
@@ -49,6 +50,7 @@ from slam.tools.eval_metrics import (
     evaluate_full,
     parse_delta,
     rpe,
+    transformed,
 )
 from slam.tools.eval_results import DriftResult, EvalResult, RPEResult, Stats, json_ready
 from slam.tools.ground_truth import (
@@ -56,6 +58,7 @@ from slam.tools.ground_truth import (
     load_run_ground_truth,
     sequence_ground_truth,
 )
+from slam.trajectory import Trajectory
 
 if TYPE_CHECKING:
     from slam.tools.plots import (
@@ -85,7 +88,9 @@ __all__ = [
     "evaluate_files",
     "evaluate_full",
     "evaluate_run",
+    "map_frame_ate",
     "load_run_ground_truth",
+    "localisation_summary",
     "parse_delta",
     "PlotPlane",
     "plot_plane",
@@ -95,6 +100,26 @@ __all__ = [
     "sequence_ground_truth",
     "trajectory_plane",
 ]
+
+
+def map_frame_ate(gt: Trajectory, est: Trajectory, map_run: str | Path) -> float:
+    """The ATE RMSE (m) of a localisation run's trajectory ``est`` in its map's world frame:
+    the map run's own alignment to its ground truth applied (that run's trajectory and its
+    sequence's ground truth, as recorded in ``map_run``), and no alignment of ``est``'s own,
+    so a localisation that lands 20 cm off the map reads 20 cm."""
+    run = RunFolder(map_run)
+    seq_dir = run.sequence_dir()
+    if seq_dir is None:
+        raise RunFolderError(
+            f"{map_run}: the map run's sequence folder ({run.sequence_path()}) is not found, so "
+            "its alignment to the ground truth is unknown"
+        )
+    map_gt, source = sequence_ground_truth(seq_dir)
+    if map_gt is None:
+        raise RunFolderError(f"{map_run}: the map run's sequence has no ground truth ({source})")
+    S = alignment(map_gt, run.trajectory())
+    return ate(gt, transformed(est, S), align=False).rmse
+
 
 #: Names of :mod:`slam.tools.plots` re-exported here, imported on first use.
 _PLOTTING = ("PlotPlane", "plot_plane", "plot_trajectories", "save_figure", "trajectory_plane")
@@ -123,10 +148,14 @@ class RunEvaluation:
     odometry: EvalResult | None
     odometry_identical: bool
     loops_accepted: int | None = None
+    # a localisation run (slam run --map): frames placed in the map, frames not placed, the
+    # first placed, and the ATE in the map's frame (or why it could not be measured)
+    localisation: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "run_dir": str(self.run_dir),
+            "localisation": self.localisation,
             "ground_truth": self.ground_truth,
             "loops_accepted": self.loops_accepted,
             "odometry_identical": self.odometry_identical,
@@ -145,6 +174,28 @@ def _loops_accepted(run: RunFolder) -> int | None:
     except RunFolderError:
         return None
     return int(value) if isinstance(value, (int, float)) else None
+
+
+_LOCALISATION_KEYS = ("map", "frames_localised", "frames_not_localised", "first_localised_frame")
+
+
+def localisation_summary(run: RunFolder, gt: Trajectory | None = None) -> dict[str, Any] | None:
+    """A localisation run's counts from its ``metrics.json`` (None for a mapping run) and,
+    given its ground truth ``gt`` and with frames placed, ``ate_rmse_map_frame_m``
+    (:func:`map_frame_ate`; ``map_frame_error`` when it cannot be measured)."""
+    try:
+        metrics = run.metrics()
+    except RunFolderError:
+        return None
+    if metrics.get("map") is None:
+        return None
+    out = {k: metrics.get(k) for k in _LOCALISATION_KEYS}
+    if gt is not None and out["frames_localised"]:
+        try:
+            out["ate_rmse_map_frame_m"] = map_frame_ate(gt, run.trajectory(), out["map"])
+        except SlamError as exc:
+            out["map_frame_error"] = str(exc)
+    return out
 
 
 def evaluate_run(
@@ -178,4 +229,7 @@ def evaluate_run(
         odometry = final if identical else evaluate_full(gt, odo, **kw)
     else:
         logger.warning("%s: no %s; only the final trajectory is evaluated", run.path, ODOMETRY_FILE)
-    return RunEvaluation(run.path, source, final, odometry, identical, _loops_accepted(run))
+    return RunEvaluation(
+        run.path, source, final, odometry, identical, _loops_accepted(run),
+        localisation_summary(run, gt),
+    )  # fmt: skip

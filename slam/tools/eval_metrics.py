@@ -354,6 +354,17 @@ def align_trajectory(
     return Trajectory(np.array(est.timestamps, copy=True), out)
 
 
+def alignment(gt: Trajectory, est: Trajectory, max_diff: float = 0.01) -> np.ndarray:
+    """The SE(3) Umeyama alignment (4x4) that :func:`ate` applies to ``est`` (evo's ``-a``)."""
+    ref, est_s = _associate_evo(gt, est, max_diff)
+    return _align_evo(ref, est_s, True, False)
+
+
+def transformed(traj: Trajectory, T: np.ndarray) -> Trajectory:
+    """Every pose of ``traj`` moved by the rigid transform ``T`` (T @ pose)."""
+    return Trajectory(np.array(traj.timestamps, copy=True), np.asarray(T, float) @ traj.poses)
+
+
 def _alignment_name(align: bool, correct_scale: bool) -> str:
     if align:
         return "sim3" if correct_scale else "se3"
