@@ -41,11 +41,14 @@ def test_a_run_writes_a_map_that_loads_whole(mapped):
     assert m.volume.n_blocks > 100
     doc = json.loads((mapped / "map" / "map.json").read_text())
     assert [kf["id"] for kf in doc["keyframes"]] == [kf.id for kf in m.keyframes]
-    # the keyframes stand where the run's final trajectory put them
+    # the keyframes stand where the fused surface puts them: their submap's rigid correction,
+    # within millimetres of the final trajectory (which bends inside a submap)
     traj = slam.read_tum(mapped / "trajectory.txt")
+    apart = []
     for kf in m.keyframes:
         i = int(np.argmin(np.abs(traj.timestamps - kf.timestamp)))
-        assert np.abs(traj.poses[i] - kf.T_world_cam).max() < 1e-6
+        apart.append(np.linalg.norm(traj.poses[i][:3, 3] - kf.T_world_cam[:3, 3]))
+    assert np.median(apart) < 0.015 and max(apart) < 0.03, np.round(apart, 4)
 
 
 def test_the_saved_map_renders_as_the_run_fused_it(mapped, synth_loop_320):
