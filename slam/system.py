@@ -29,12 +29,11 @@ from typing import Any
 import numpy as np
 
 from slam.backend.adjuster import BundleAdjuster
-from slam.backend.finalise import final_mesh, final_poses
+from slam.backend.finalise import final_mesh, final_poses, view_correction
 from slam.config import SlamConfig
 from slam.data.base import Frame, checked_frame
 from slam.errors import SlamError
 from slam.frontend.tracker import Tracker
-from slam.geometry import inv_T
 from slam.keyframe import Keyframe
 from slam.localisation import Localisation
 from slam.loops.closer import KeyframeLink, LoopCloser
@@ -380,16 +379,17 @@ class Slam:
             if poses.corrected
             else None
         )
-        out = final_mesh(
-            model, anchors, None if len(main) == len(model.submaps) else main, out_cfg.save_mesh
-        )
+        # the surface follows the final trajectory view by view (it bends inside a submap)
+        correct = view_correction(poses.odometry, poses.final) if poses.corrected else None
+        include = None if len(main) == len(model.submaps) else main
+        out = final_mesh(model, anchors, include, out_cfg.save_mesh, correct)
         if out.reintegration_ms is not None:
             stage_ms["reintegration"] = out.reintegration_ms
         stage_ms["meshing"] = out.meshing_ms
         saved = None
         if out_cfg.save_map and model.camera is not None:
             keyframes = [
-                dataclasses.replace(kf, T_world_cam=self._on_surface(kf, anchors))
+                dataclasses.replace(kf, T_world_cam=poses.T_world_kf[kf.id])
                 for kf in kfs
                 if closer.segment_root(kf.segment) == main_root
             ]
@@ -399,16 +399,6 @@ class Slam:
                 size, self.has_color, self.tracker.color_registered,
             )  # fmt: skip
         return out.mesh, out.map_blocks, saved
-
-    def _on_surface(self, kf: Keyframe, anchors: dict[int, np.ndarray] | None) -> np.ndarray:
-        """A keyframe's pose in the global model as fused: its submap moved rigidly to its
-        corrected anchor (``anchors``; None: as fused), the keyframe with it. The final pose
-        bends inside a submap where the surface does not, and a localisation registered at
-        one and tracked against the other would jump between them (3-7 mm on the demo)."""
-        sm = self.model.submap_of_keyframe(kf.id)
-        if anchors is None or sm is None:
-            return kf.T_world_cam.copy()
-        return anchors[sm.id] @ inv_T(sm.T_world_anchor) @ kf.T_world_cam
 
     # --- checkpoints
     def state_dict(self) -> dict[str, Any]:

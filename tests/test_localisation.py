@@ -201,3 +201,19 @@ def test_first_frame_starts_a_run_inside_the_sequence(synth_loop_320):
     assert frame_indices(seq, cfg) == [31, 33, 35]
     with pytest.raises(slam.ConfigError, match="dataset.first_frame"):
         config_from_dict({"dataset": {"first_frame": -1}})
+
+
+def test_a_localisation_only_reads_its_map(mapped, synth_loop_320, tmp_path):
+    """Nothing in the map's run folder changes (two localisations may share one map)."""
+
+    def snapshot() -> dict[str, tuple[int, int]]:
+        return {
+            str(p.relative_to(mapped)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(mapped.rglob("*"))
+        }
+
+    before = snapshot()
+    cfg = config_from_dict({"dataset": {"first_frame": 3, "max_frames": 4}})
+    result, _ = run_sequence(synth_loop_320, tmp_path / "run", config=cfg, map_dir=mapped)
+    assert result.metrics["frames_localised"] == 4
+    assert snapshot() == before

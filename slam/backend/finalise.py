@@ -4,10 +4,12 @@ frame bent onto them (:func:`elastic_correction`)."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from slam.geometry import exp_se3, inv_T, log_se3
 from slam.keyframe import Keyframe
@@ -120,30 +122,48 @@ class FinalMesh:
     refused: bool  # several submaps re-fused: each surface carries one view's weight
 
 
+def view_correction(odometry: np.ndarray, final: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """How a fused view moves from its odometry pose to its final one: the correction
+    (``final @ odometry^-1``) of the frame whose odometry pose it is (``odometry``, ``final``:
+    N x 4 x 4, one row a frame; the frame found by its position, which a view shares with the
+    frame it was fused from up to float rounding)."""
+    tree = cKDTree(odometry[:, :3, 3])
+    corrections = final @ np.linalg.inv(odometry)
+
+    def correct(T_world_view: np.ndarray) -> np.ndarray:
+        _, i = tree.query(T_world_view[:3, 3])
+        return corrections[int(i)] @ T_world_view
+
+    return correct
+
+
 def final_mesh(
     model: Any,
     T_world_anchors: dict[int, np.ndarray] | None,
     include: set[int] | None,
     mesh: bool = True,
+    correct_view: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> FinalMesh:
     """The global model, and marching cubes on it (``mesh``): the submaps in ``include``
-    (None: all) under their corrected anchor poses (``T_world_anchors`` by submap id; None: as
-    fused). Several submaps are first re-fused into one volume
-    (:meth:`slam.mapping.submaps.SubmapMap.rebuild`); a single one is its own volume, moved
-    rigidly."""
+    (None: all) re-fused into one volume, each view where ``correct_view`` moves it (the
+    trajectory's correction; :func:`view_correction`) or, without it, each submap under its
+    corrected anchor pose (``T_world_anchors`` by submap id; None: as fused)
+    (:meth:`slam.mapping.submaps.SubmapMap.rebuild`). A single submap that nothing corrects
+    inside is its own volume, moved rigidly."""
     t0 = time.perf_counter()
     chosen = [sm for sm in model.submaps if include is None or sm.id in include]
-    if len(chosen) == 1:
+    if len(chosen) == 1 and correct_view is None:
         sm = chosen[0]
         volume, blocks, reintegration_ms = model.volume(sm), model.n_blocks, None
         T_world_volume = np.asarray((T_world_anchors or {}).get(sm.id, sm.T_world_anchor), float)
     else:
-        volume = model.rebuild(T_world_anchors, include)
+        volume = model.rebuild(T_world_anchors, include, correct_view)
         blocks, T_world_volume = volume.n_blocks, np.eye(4)
         reintegration_ms = (time.perf_counter() - t0) * 1e3
     t1 = time.perf_counter()
     out = volume.extract_mesh().transform(T_world_volume) if mesh else None
     meshing_ms = (time.perf_counter() - t1) * 1e3 if mesh else 0.0
     return FinalMesh(
-        out, blocks, reintegration_ms, meshing_ms, volume, T_world_volume, len(chosen) != 1
-    )
+        out, blocks, reintegration_ms, meshing_ms, volume, T_world_volume,
+        len(chosen) != 1 or correct_view is not None,
+    )  # fmt: skip

@@ -19,6 +19,7 @@ import logging
 import shutil
 import tempfile
 import weakref
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -295,9 +296,14 @@ class SubmapMap:
         self,
         T_world_anchors: dict[int, np.ndarray] | None = None,
         include: set[int] | None = None,
+        correct_view: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> TSDFVolume:
-        """Re-fuse every submap (or those whose ids are in ``include``) into one volume, each
-        under ``T_world_anchors[submap.id]`` (default: the anchors' odometry poses)."""
+        """Re-fuse every submap (or those whose ids are in ``include``) into one volume: each
+        submap is rendered from its views (every ``reintegration_stride``-th) and each render
+        fused where ``correct_view`` moves that view (its odometry pose in, its corrected pose
+        out: the surface follows a trajectory that bends inside a submap); without it, the
+        submap moves rigidly, under ``T_world_anchors[submap.id]`` (default: the anchors'
+        odometry poses)."""
         cfg = self.cfg
         out = TSDFVolume(cfg, self.has_color)
         # a rendered view shows only surfaces that passed the ray-caster's weight threshold in
@@ -319,8 +325,13 @@ class SubmapMap:
             volume = self.volume(sm)
             for T_anchor_view in views:
                 r = volume.render(K, w, h, T_anchor_view, with_normals=False)
-                if (r.depth_m > 0).any():
-                    out.integrate(r.depth_m, _color_u8(r), K, T_world_anchor @ T_anchor_view)
+                if not (r.depth_m > 0).any():
+                    continue
+                if correct_view is not None:
+                    T_world_view = correct_view(sm.T_world_anchor @ T_anchor_view)
+                else:
+                    T_world_view = T_world_anchor @ T_anchor_view
+                out.integrate(r.depth_m, _color_u8(r), K, T_world_view)
         log.info(
             "re-fused %d submaps into a global model of %d blocks", len(self.submaps), out.n_blocks
         )
