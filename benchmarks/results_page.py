@@ -26,6 +26,7 @@ from common import ROOT
 
 PAGE = ROOT / "docs" / "results.md"
 README = ROOT / "README.md"
+RESULTS = ROOT / "benchmarks" / "results"
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 #: the README's reference columns: Open3D's dense SLAM on the same frames
 #: (``benchmarks/open3d_baseline.py``, 1 cm voxels) and published figures
@@ -120,7 +121,50 @@ def render(matrix: dict, source: Path) -> str:
     ]
     out = head + ["## Real recordings", ""] + table + [_row(n, rows[n]) for n in real]
     out += ["", "## Synthetic scene matrix", ""] + table + [_row(n, rows[n]) for n in synthetic]
-    return "\n".join(out) + "\n"
+    return "\n".join(out + extra_sections()) + "\n"
+
+
+def extra_sections() -> list[str]:
+    """The localisation and mesh-accuracy tables, from their own benchmarks' latest results
+    (``localisation-*.json``, ``mesh-accuracy-per-view.json``), when present."""
+    out: list[str] = []
+    loc = sorted(RESULTS.glob("localisation-*.json"))
+    if loc:
+        out += [
+            "", "## Localisation in a saved map",
+            "",
+            "`python benchmarks/localisation.py SEQ --split N`: frames before N mapped, the rest "
+            "localised in that map (`slam run --map`); ATE in mm; time: localising over mapping "
+            "the same frames (median of 3 alternating pairs).",
+            "",
+            "| sequence | split | localised | map frame ATE | aligned ATE | one run's ATE on "
+            "those frames | map run's ATE | time ratio |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|",
+        ]  # fmt: skip
+        for path in loc:
+            d = json.loads(path.read_text())
+            first = d["pairs"][0]["localisation"]
+            out.append(
+                f"| `{d['sequence']}` | {d['split']} | {first['frames_localised']} of "
+                f"{first['frames']} | {_mm(first['ate_rmse_map_frame_m'])} | "
+                f"{_mm(first['ate_rmse_m'])} | {_mm(d['full_run_error_on_localised_frames_m'])} | "
+                f"{_mm(d['map_run']['ate_rmse_m'])} | "
+                f"{d['median_seconds_ratio_localisation_over_mapping']:.2f} |"
+            )
+    mesh = RESULTS / "mesh-accuracy-per-view.json"
+    if mesh.is_file():
+        rows = json.loads(mesh.read_text())["rows"]
+        out += [
+            "", "## Mesh accuracy",
+            "",
+            "`python benchmarks/mesh_accuracy.py ROWS`: distance of the mesh's vertices to the "
+            "true surface of synthetic sequences (mm), the mesh aligned as the trajectory is.",
+            "",
+            "| sequence | median | 90th percentile |",
+            "|---|---:|---:|",
+        ]  # fmt: skip
+        out += [f"| `{n}` | {r['median_mm']:.2f} | {r['p90_mm']:.2f} |" for n, r in rows.items()]
+    return out
 
 
 def main() -> None:
