@@ -51,6 +51,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "slam.kernels",
             "slam.saved_map",
             "slam.localisation",
+            "slam.merge",
         ),
     ),
     ("run folder", ("slam.run_folder",)),

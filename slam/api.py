@@ -51,6 +51,7 @@ def run_sequence(
     worker_threads: int | None = None,
     map_dir: str | Path | None = None,
     first_frame: int | None = None,
+    extend: bool = False,
 ) -> tuple[RunResult, Path]:
     """Open a sequence folder (``None``: the built-in synthetic demo), run SLAM, save the run
     folder. Config: ``config`` if given, else defaults overridden by the YAML at ``config_path``.
@@ -78,11 +79,17 @@ def run_sequence(
     instead of mapped (:mod:`slam.localisation`; read only, so several runs may share it;
     a camera other than the map's is refused before the first frame). ``first_frame``: start
     at this frame of the sequence (``dataset.first_frame``: a recording split in two).
+    ``extend`` (with ``map_dir``): map the sequence, then join it to that map
+    (:func:`slam.merge.extend_map`): the run folder gets the merged mesh and map, the new
+    frames' poses in the map's frame (the old folder is left as it was); a recording that never
+    meets the map stays in its own frame, reported as not joined.
     """
     cfg = config if config is not None else load_config(config_path)
     if first_frame is not None:
         cfg.dataset.first_frame = first_frame
     saved = None
+    if extend and map_dir is None:
+        raise ConfigError("extend needs the map to extend: give map_dir (--map RUN_DIR)")
     if map_dir is not None:
         if workers > 1:
             raise ConfigError("--map localises on one worker: leave out --workers")
@@ -121,12 +128,31 @@ def run_sequence(
         else:
 
             def run_fn(hook: FrameCallback | None) -> RunResult:
-                return run(seq, cfg, progress=progress, run_dir=out,
-                           checkpoint_every=checkpoint_every, on_frame=hook,
-                           map=saved)  # fmt: skip
+                result = run(seq, cfg, progress=progress, run_dir=out,
+                             checkpoint_every=checkpoint_every, on_frame=hook,
+                             map=None if extend else saved)  # fmt: skip
+                if extend:
+                    assert saved is not None
+                    result = _extended(result, saved, seq, cfg)
+                return result
 
         result = _recorded(recorder, run_fn, on_frame, out)
     return result, out
+
+
+def _extended(result: RunResult, saved: Map, seq: Sequence, cfg: SlamConfig) -> RunResult:
+    """The new run joined to the saved map (:func:`slam.merge.extend_map`), with the join's
+    report and, when joined and with ground truth, the error in the map's frame."""
+    from slam.merge import extend_map
+    from slam.pipeline import evaluate_in_map_frame
+
+    result, report = extend_map(saved, result, cfg)
+    m = result.metrics
+    m.extended_map = str(saved.source)
+    m.map_extension = report.as_json()
+    if report.joined and len(result.trajectory):
+        m.update(evaluate_in_map_frame(seq, result.trajectory, str(saved.source)))
+    return result
 
 
 def _warn_overridden_calibration(seq: Sequence, cfg: SlamConfig) -> None:

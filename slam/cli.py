@@ -145,6 +145,15 @@ def run(
             "map does not explain get no pose. The map is only read.",
         ),
     ] = None,
+    extend: Annotated[
+        bool,
+        typer.Option(
+            "--extend",
+            help="With --map: map the sequence and join it to that map (loops between the old "
+            "and new keyframes, one pose graph, one re-fused surface); OUT gets the merged mesh "
+            "and map, the old folder is left as it was.",
+        ),
+    ] = False,
     checkpoint_every: Annotated[
         Optional[int],
         typer.Option(
@@ -234,6 +243,7 @@ def run(
                 ray_address=ray,
                 map_dir=map_dir,
                 first_frame=first_frame,
+                extend=extend,
             )
     finally:
         bar.stop()

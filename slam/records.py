@@ -124,6 +124,8 @@ _OPTIONAL = frozenset(
         "first_localised_frame",
         "ate_rmse_map_frame_m",
         "map_frame_error",
+        "extended_map",
+        "map_extension",
         "read_ms_per_frame",
         "calibration_source",
         "ate_rmse_m",
@@ -196,6 +198,10 @@ class RunMetrics:
     frames_localised: int | None = None
     frames_not_localised: int | None = None
     first_localised_frame: int | None = None
+    # a run that extended a saved map (slam run --map --extend): that map's run folder, and how
+    # the new recording joined it (slam.merge.MergeReport)
+    extended_map: str | None = None
+    map_extension: dict[str, Any] | None = None
     # set when the run folder is written (slam.run_folder.save_run): the software that ran
     slam_version: str | None = None
     git_commit: str | None = None  # null when not run from a git checkout

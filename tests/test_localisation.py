@@ -217,3 +217,39 @@ def test_a_localisation_only_reads_its_map(mapped, synth_loop_320, tmp_path):
     result, _ = run_sequence(synth_loop_320, tmp_path / "run", config=cfg, map_dir=mapped)
     assert result.metrics["frames_localised"] == 4
     assert snapshot() == before
+
+
+def test_extend_joins_a_recording_that_meets_the_map(mapped, synth_loop_320, tmp_path):
+    """`--extend`: the frames after the map's (overlapping its last ones) are mapped, linked to
+    the old keyframes, placed in the map's frame; the new folder holds the merged map (old and
+    new keyframes, one surface) and the old folder is left as it was."""
+    cfg = config_from_dict({"dataset": {"first_frame": MAP_FRAMES - 20, "max_frames": 60}})
+    before = sorted(p.name for p in (mapped / "map").iterdir())
+    result, run_dir = run_sequence(
+        synth_loop_320, tmp_path / "ext", config=cfg, map_dir=mapped, extend=True
+    )
+    m = result.metrics
+    assert m["extended_map"] == str(mapped) and m["map_extension"]["joined"]
+    assert m["map_extension"]["links"] >= 1 and m["map_extension"]["old_map_moved_m"] < 1e-3
+    assert m["ate_rmse_map_frame_m"] < 0.02, m["ate_rmse_map_frame_m"]
+    merged = Map.load(run_dir)
+    old = Map.load(mapped)
+    assert len(merged.keyframes) > len(old.keyframes)
+    assert len({kf.id for kf in merged.keyframes}) == len(merged.keyframes)
+    assert merged.volume.n_blocks >= old.volume.n_blocks * 0.8
+    assert (run_dir / "mesh.ply").is_file()
+    assert sorted(p.name for p in (mapped / "map").iterdir()) == before
+
+
+def test_extend_with_a_recording_of_another_place_keeps_it_apart(mapped, tmp_path):
+    from slam.synthetic import SynthConfig, generate_sequence
+
+    other = generate_sequence(
+        tmp_path / "hall",
+        SynthConfig.half_resolution(frames=300, render_frames=20, scene="hall", seed=5),
+    )
+    result, run_dir = run_sequence(other, tmp_path / "ext", map_dir=mapped, extend=True)
+    ext = result.metrics["map_extension"]
+    assert not ext["joined"] and ext["links"] == 0 and ext["pairs_tried"] > 0
+    # the new run as it was: its own frame, its own map
+    assert len(Map.load(run_dir).keyframes) == result.metrics["keyframes"]
