@@ -40,6 +40,8 @@ _EXPORTS = {
     "save_run": "slam.run_folder.writer",
     "resume_run": "slam.api",
     "run_sequence": "slam.api",
+    "Map": "slam.saved_map",
+    "MapError": "slam.saved_map",
     "FrameResult": "slam.system",
     "Slam": "slam.system",
     "Trajectory": "slam.trajectory",
