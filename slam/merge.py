@@ -10,9 +10,10 @@ mapped as any run is, then joined to the saved map.
    links at both ends bend the new recording as a loop closure would) and the links (robust
    loop edges, as the loop closer weighs them), solved by GTSAM; the new keyframes start where
    the first link puts them.
-3. **Poses and surface**: the new frames follow their keyframes (the elastic correction); both
-   maps' volumes are rendered from their keyframes' views and fused where the solution puts
-   each view, into one volume: the merged mesh and map.
+3. **Poses and surface**: the new frames follow their keyframes (the elastic correction); the
+   new map's volume is rendered from the new frames' views (every ``reintegration_stride``-th)
+   and fused, where the solution moves each view, into the old map's volume: the merged mesh
+   and map.
 
 A recording that never meets the old map (no link) stays its own segment, in its own frame: the
 result is the new run as it was, reported as not joined, and no merged map is written.
@@ -130,19 +131,24 @@ def _solve(
     )
 
 
-def _fuse(target: TSDFVolume, part: Map, poses: dict[int, np.ndarray], downsample: int) -> None:
-    """Fuse ``part``'s surface into ``target``, rendered from each of its keyframes' views (its
-    own frame) and placed where ``poses`` (by keyframe id) put the view."""
+def _fuse(
+    target: TSDFVolume,
+    part: Map,
+    views: list[tuple[np.ndarray, np.ndarray]],
+    downsample: int,
+) -> None:
+    """Fuse ``part``'s surface into ``target``: rendered from each of ``views`` (the view's
+    pose in ``part``'s world frame, then where to fuse it in ``target``'s)."""
     K = scale_intrinsics(part.K, downsample)
     w, h = part.size[0] // downsample, part.size[1] // downsample
     T_volume_world = inv_T(part.T_world_volume)
-    for kf in part.keyframes:
-        r = part.volume.render(K, w, h, T_volume_world @ kf.T_world_cam, with_normals=False)
+    for T_part_view, T_target_view in views:
+        r = part.volume.render(K, w, h, T_volume_world @ T_part_view, with_normals=False)
         if (r.depth_m > 0).any():
             color = None
             if r.color is not None:
                 color = np.clip(r.color * 255.0 + 0.5, 0, 255).astype(np.uint8)
-            target.integrate(r.depth_m, color, K, poses[kf.id])
+            target.integrate(r.depth_m, color, K, T_target_view)
 
 
 def _start_from(
@@ -155,7 +161,7 @@ def _start_from(
         volume = TSDFVolume.from_arrays(old.volume.to_arrays(), cfg.mapping, old.volume.has_color)
     else:
         volume = TSDFVolume(cfg.mapping, old.has_color)
-        _fuse(volume, old, poses, downsample)
+        _fuse(volume, old, [(kf.T_world_cam, poses[kf.id]) for kf in old.keyframes], downsample)
     volume.mesh_weight_threshold = 1.0
     return volume
 
@@ -194,10 +200,13 @@ def extend_map(old: Map, new: RunResult, cfg: SlamConfig) -> tuple[RunResult, Me
     )  # fmt: skip
     T_align = poses_new[kfs[0].id] @ inv_T(kfs[0].T_world_cam)
     odometry = Trajectory(new.odometry.timestamps.copy(), T_align @ new.odometry.poses)
-    # one surface: both maps rendered from their keyframes, fused where the solution puts them
+    # one surface: the old map's, and the new one's rendered from the new frames (every
+    # reintegration_stride-th, as the end of a run re-fuses) where the solution moves them
     down = max(int(cfg.mapping.reintegration_downsample), 1)
     merged = _start_from(old, cfg, poses_old, down)
-    _fuse(merged, new.map, poses_new, down)
+    stride = max(int(cfg.mapping.reintegration_stride), 1)
+    views = list(zip(traj.poses[::stride], moved[::stride]))
+    _fuse(merged, new.map, views, down)
     offset = max(kf.id for kf in old.keyframes) + 1
     keyframes = [dataclasses.replace(kf, T_world_cam=poses_old[kf.id]) for kf in old.keyframes]
     keyframes += [
