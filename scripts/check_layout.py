@@ -35,6 +35,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "slam.keyframe",
             "slam.trajectory",
             "slam.data.layouts",
+            "slam.files",
             "slam.run_folder.layout",
         ),
     ),  # fmt: skip

@@ -25,7 +25,6 @@ from slam.frontend.frame import PreparedFrame, usable_depth_fraction
 from slam.frontend.tracker import Tracker
 from slam.geometry import inv_T
 from slam.loops.closer import KeyframeLink
-from slam.loops.place_recognition import KeyframeDatabase
 from slam.loops.recovery import Outcome
 from slam.loops.relocalisation import Relocaliser
 from slam.loops.verification import LoopVerifier
@@ -51,22 +50,13 @@ class MapModel:
         return self.volume.depth_max_m
 
     def raycast(
-        self,
-        K: np.ndarray,
-        width: int,
-        height: int,
-        T_world_cam: np.ndarray,
-        with_normals: bool = True,
-        with_color: bool = False,
-        *,
-        frustum_depth_m: np.ndarray | None = None,
-        min_weight: float | None = None,
+        self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray, *args, **kw
     ) -> Rendering:
-        return self.volume.raycast(
-            K, width, height, self.T_volume_world @ T_world_cam, with_normals, with_color,
-            frustum_depth_m=frustum_depth_m,
-            min_weight=self.min_weight if min_weight is None else min_weight,
-        )  # fmt: skip
+        """:meth:`TSDFVolume.raycast <slam.mapping.tsdf.TSDFVolume.raycast>` from a pose in
+        the map's world frame, surfaces fused at least ``min_weight`` (default the map's)."""
+        if kw.get("min_weight") is None:
+            kw["min_weight"] = self.min_weight
+        return self.volume.raycast(K, width, height, self.T_volume_world @ T_world_cam, *args, **kw)
 
 
 @dataclass
@@ -85,14 +75,9 @@ class Localisation:
     def __post_init__(self) -> None:
         self.model = MapModel(self.saved)
         loop = self.cfg.loop
-        database = KeyframeDatabase(loop.vocabulary_words, loop.vocabulary_keyframes)
-        for kf in self.saved.keyframes:
-            database.observe(kf.features.descriptors)
-        for kf in self.saved.keyframes:
-            database.add(kf.id, kf.features.descriptors)
         t = self.cfg.tracking
         self.relocaliser = Relocaliser(
-            self.verifier, database, t.recovery.relocalisation_candidates,
+            self.verifier, self.saved.place_index(loop), t.recovery.relocalisation_candidates,
             loop.exclude_recent_keyframes, t.motion.hypothesis_overlap, t.depth_max_m,
         )  # fmt: skip
 

@@ -33,7 +33,6 @@ from slam.camera import scale_intrinsics
 from slam.config import SlamConfig
 from slam.geometry import inv_T
 from slam.keyframe import Keyframe
-from slam.loops.place_recognition import KeyframeDatabase
 from slam.loops.verification import LoopVerifier
 from slam.mapping.tsdf import TSDFVolume
 from slam.results import RunResult
@@ -79,18 +78,17 @@ def _links(
     old: Map, new: list[Keyframe], cfg: SlamConfig, verifier: LoopVerifier
 ) -> tuple[list[tuple[Keyframe, Keyframe, np.ndarray, np.ndarray]], int]:
     """Verified (new, old, T_old_new, information) pairs, and the number of pairs tried."""
-    db = KeyframeDatabase(cfg.loop.vocabulary_words, cfg.loop.vocabulary_keyframes)
-    for kf in old.keyframes:
-        db.observe(kf.features.descriptors)
-    for kf in old.keyframes:
-        db.add(kf.id, kf.features.descriptors)
+    db = old.place_index(cfg.loop)
     by_id = {kf.id: kf for kf in old.keyframes}
     out, tried = [], 0
     for kf in new:
-        ranked = [by_id[i] for i, _ in db.query(kf.features.descriptors, _CANDIDATES)]
-        if not db.trained:  # a small old map: try its keyframes with the most matches
-            ranked = old.keyframes
-        for cand in ranked[:_CANDIDATES] if db.trained else ranked:
+        # a small old map has no vocabulary yet: every keyframe of it is a candidate
+        ranked = (
+            [by_id[i] for i, _ in db.query(kf.features.descriptors, _CANDIDATES)]
+            if db.trained
+            else old.keyframes
+        )
+        for cand in ranked:
             tried += 1
             ver = verifier.verify(kf.view(), cand.view())
             if ver.accepted:

@@ -22,20 +22,19 @@ last, each file atomically, so a map folder is whole or has no ``map.json``.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from slam.config import MappingConfig, SlamConfig, config_from_dict
+from slam.config import LoopConfig, MappingConfig, SlamConfig, config_from_dict
 from slam.errors import ConfigError, RunFolderError
+from slam.files import file_digest, write_via_tmp
 from slam.keyframe import FeatureSet, Keyframe
+from slam.loops.place_recognition import KeyframeDatabase
 from slam.mapping.tsdf import TSDFVolume
 from slam.run_folder.layout import MAP_DIR, METRICS_FILE
 
@@ -89,6 +88,15 @@ class Map:
                 "recordings of the camera that made the map, or give the right calibration"
             )
 
+    def place_index(self, loop: LoopConfig) -> KeyframeDatabase:
+        """The keyframes indexed for place recognition (the vocabulary learnt on them)."""
+        db = KeyframeDatabase(loop.vocabulary_words, loop.vocabulary_keyframes)
+        for kf in self.keyframes:
+            db.observe(kf.features.descriptors)
+        for kf in self.keyframes:
+            db.add(kf.id, kf.features.descriptors)
+        return db
+
     # --- files
     def save(self, folder: str | Path, config: SlamConfig) -> Path:
         """Write the map into ``folder`` (see the module docstring); ``config``: the run's
@@ -112,7 +120,8 @@ class Map:
             "keyframes": [_keyframe_doc(kf) for kf in self.keyframes],
             "digests": digests,
         }
-        _write_bytes(out / MANIFEST, (json.dumps(manifest, indent=1) + "\n").encode())
+        data = (json.dumps(manifest, indent=1) + "\n").encode()
+        write_via_tmp(out / MANIFEST, lambda f: f.write(data))
         return out
 
     @classmethod
@@ -135,7 +144,7 @@ class Map:
         doc = _read_manifest(folder / MANIFEST)
         try:
             for name, digest in doc["digests"].items():
-                if name not in (_KEYFRAMES, _VOLUME) or _digest(folder / name) != digest:
+                if name not in (_KEYFRAMES, _VOLUME) or file_digest(folder / name) != digest:
                     raise MapError(
                         f"{folder / name}: damaged (its SHA-256 is not the one {MANIFEST} "
                         "recorded): run the recording again to make the map anew"
@@ -225,43 +234,11 @@ def _volume(arrays: dict[str, np.ndarray], cfg: MappingConfig, has_color: bool) 
     return TSDFVolume.from_arrays(a, cfg, has_color and "color" in a)
 
 
-# --- files: atomic writes, digests, pickle-free reads
-def _write_bytes(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.chmod(tmp, 0o644)  # mkstemp creates 0600; a map is meant to be shared
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
+# --- files: atomic writes (slam.files), pickle-free reads
 def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> str:
     """Write ``arrays`` compressed, atomically; returns the file's SHA-256."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.chmod(tmp, 0o644)  # mkstemp creates 0600; a map is meant to be shared
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return _digest(path)
-
-
-def _digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+    write_via_tmp(path, lambda f: np.savez_compressed(f, **arrays))
+    return file_digest(path)
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:

@@ -395,7 +395,7 @@ class Slam:
             ]
             K, size = model.camera
             saved = Map(
-                keyframes, out.volume, out.T_world_volume, 1.0 if out.refused else None, K,
+                keyframes, out.volume, out.T_world_volume, 1.0 if out.rebuilt else None, K,
                 size, self.has_color, self.tracker.color_registered,
             )  # fmt: skip
         return out.mesh, out.map_blocks, saved

@@ -119,7 +119,7 @@ class FinalMesh:
     meshing_ms: float
     volume: Any  # the global model: a TSDFVolume (one submap's own, or the re-fused one)
     T_world_volume: np.ndarray  # where that volume sits in the world frame
-    refused: bool  # several submaps re-fused: each surface carries one view's weight
+    rebuilt: bool  # re-fused from rendered views: each surface carries one view's weight
 
 
 def view_correction(odometry: np.ndarray, final: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:

@@ -47,6 +47,8 @@ from typing import Any
 
 import numpy as np
 
+from slam.files import file_digest as _file_digest
+from slam.files import write_via_tmp as _write_via_tmp
 from slam.run_folder.codec import _ARRAY_KINDS, CheckpointError, _list, decode, encode
 from slam.run_folder.layout import CHECKPOINT_DIR
 
@@ -74,10 +76,6 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-def _tmp(path: Path) -> Path:
-    return path.with_name(f".{path.name}.tmp")
-
-
 def _write_bytes(path: Path, data: bytes) -> None:
     _write_via_tmp(path, lambda f: f.write(data))
 
@@ -86,31 +84,8 @@ def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
     _write_via_tmp(path, lambda f: np.savez(f, allow_pickle=False, **arrays))
 
 
-def _write_via_tmp(path: Path, write: Any) -> None:
-    """``write(file)`` into a temporary name beside ``path``, fsync, rename; on any failure
-    (a full disk: ENOSPC) the temporary file is removed and nothing replaces ``path``."""
-    tmp = _tmp(path)
-    try:
-        with open(tmp, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
 def _json(tree: Any) -> bytes:
     return json.dumps(tree, separators=(",", ":")).encode()
-
-
-def _file_digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(1 << 20):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _header_digest(header: Mapping[str, Any]) -> str:
