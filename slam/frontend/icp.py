@@ -11,6 +11,7 @@ import open3d as o3d
 import open3d.core as o3c
 
 from slam.camera import DepthNoise, scale_intrinsics
+from slam.frontend.depth_kernels import agreement
 from slam.frontend.pointcloud import depth_pyramid
 
 _odom = o3d.t.pipelines.odometry
@@ -193,56 +194,17 @@ def projective_agreement(
 ) -> tuple[float, float]:
     """:func:`projective_overlap` and the point-to-plane RMSE (metres) of the agreeing pixels
     against the target surface (its normal from the target depth's neighbours at the pixel;
-    pixels without a normal are left out); the RMSE is NaN when none agrees (or not
-    ``residuals``)."""
-    sub = source_depth_m[::step, ::step]
-    v, u = np.nonzero((sub > 0) & (sub <= source_max_m))
-    v, u = v * step, u * step
-    if len(u) == 0:
-        return 0.0, float("nan")
-    z = source_depth_m[v, u].astype(np.float64)
-    pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
-    p = pts @ T_target_source[:3, :3].T + T_target_source[:3, 3]
-    front = p[:, 2] > 1e-6
-    p = p[front]
-    ut = np.round(K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2]).astype(np.int64)
-    vt = np.round(K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2]).astype(np.int64)
-    h, w = target_depth_m.shape
-    inside = (ut >= 0) & (ut < w) & (vt >= 0) & (vt < h)
-    zt = np.zeros(len(p))
-    zt[inside] = target_depth_m[vt[inside], ut[inside]]
-    gate = threshold_m
+    pixels without a normal are left out; at most about :data:`RMSE_SAMPLES` of them, evenly
+    spaced: an RMSE needs a sample, not every pixel); the RMSE is NaN when none agrees (or not
+    ``residuals``). One compiled pass (:func:`slam.frontend.depth_kernels.agreement`)."""
+    noise_model = (0.0, 0.0, 0.0, -1.0)  # no noise model: the fixed threshold alone
     if noise is not None:
-        gate = np.maximum(threshold_m, noise_sigmas * noise.sigma(p[:, 2]))
-    good = (zt > 0) & (np.abs(zt - p[:, 2]) < gate)
-    fraction = float(good.sum()) / len(u)
-    if not residuals or not good.any():
-        return fraction, float("nan")
-    idx = np.flatnonzero(good)
-    if len(idx) > RMSE_SAMPLES:  # an RMSE needs a sample, not every pixel (~8x cheaper)
-        idx = idx[:: len(idx) // RMSE_SAMPLES]
-    r = _point_to_plane(target_depth_m, K, p[idx], ut[idx], vt[idx])
-    return fraction, float(np.sqrt(np.mean(r**2))) if len(r) else float("nan")
-
-
-def _point_to_plane(
-    depth: np.ndarray, K: np.ndarray, p: np.ndarray, u: np.ndarray, v: np.ndarray
-) -> np.ndarray:
-    """Distances of points ``p`` (target camera frame) to the target surface's tangent plane
-    at pixels (u, v), the normal from central differences of the target's vertices there."""
-    h, w = depth.shape
-    ok = (u > 0) & (u < w - 1) & (v > 0) & (v < h - 1)
-    p, u, v = p[ok], u[ok], v[ok]
-
-    def vertex(uu: np.ndarray, vv: np.ndarray) -> np.ndarray:
-        zz = depth[vv, uu].astype(np.float64)
-        return np.stack([(uu - K[0, 2]) * zz / K[0, 0], (vv - K[1, 2]) * zz / K[1, 1], zz], -1)
-
-    right, left, down, up = vertex(u + 1, v), vertex(u - 1, v), vertex(u, v + 1), vertex(u, v - 1)
-    n = np.cross(right - left, down - up)
-    norm = np.linalg.norm(n, axis=1)
-    known = (
-        (norm > 1e-12) & (right[:, 2] > 0) & (left[:, 2] > 0) & (down[:, 2] > 0) & (up[:, 2] > 0)
-    )
-    q = vertex(u[known], v[known])
-    return np.einsum("ij,ij->i", p[known] - q, n[known] / norm[known, None])
+        noise_model = (noise.sigma0_m, noise.quadratic, noise.z0_m, noise_sigmas)
+    fraction, rmse = agreement(
+        np.ascontiguousarray(source_depth_m, np.float32),
+        np.ascontiguousarray(target_depth_m, np.float32),
+        np.ascontiguousarray(K, np.float64), np.ascontiguousarray(T_target_source, np.float64),
+        float(threshold_m), int(step), np.array(noise_model), float(source_max_m),
+        bool(residuals), RMSE_SAMPLES,
+    )  # fmt: skip
+    return float(fraction), float(rmse)

@@ -6,7 +6,9 @@ without the dozen full-size temporaries the same arithmetic takes in numpy.
   the target; the point-to-plane residuals and Jacobian rows of the correspondences, and which
   points the target surface does not hide (where colour is compared);
 - :func:`photometric_rows`: the intensity residuals and Jacobian rows of those points;
-- :func:`weighted_system`: the Huber-weighted normal equations of such rows.
+- :func:`weighted_system`: the Huber-weighted normal equations of such rows;
+- :func:`warp_accumulate`: a reference view's intensity warped into the model's view (the
+  target's colour, :func:`slam.frontend.photometric.mean_warped_intensity`).
 
 The arithmetic is float32 as in the images and points (the pixel a point falls in is rounded
 from the same float32 numbers as before), the normal equations are summed in float64.
@@ -21,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["geometric_rows", "photometric_rows", "weighted_system"]
+__all__ = ["geometric_rows", "photometric_rows", "warp_accumulate", "weighted_system"]
 
 _NEAR = np.float32(1e-3)  # points nearer to the camera than this (m) are behind it
 _ONE = np.float32(1.0)
@@ -200,3 +202,38 @@ def weighted_system(J, r, count, offset, scale, delta, weight):  # pragma: no co
         ]
     )
     return H, np.array([b0, b1, b2, b3, b4, b5])
+
+
+@njit(cache=True, nogil=True)
+def warp_accumulate(
+    vertices, intrinsics, R, t, intensity, depth, gate, total, count
+):  # pragma: no cover - compiled
+    """A source view's ``intensity`` seen at destination pixels (:func:`slam.frontend.
+    photometric.mean_warped_intensity`): each destination vertex (``vertices``, N x 3, z = 0:
+    none) moved into the source camera by ``(R, t)`` and projected (``intrinsics``: fx, fy,
+    cx, cy, float32); where it lands inside the source image, in front of it, and within
+    ``gate`` of the source's depth at the nearest pixel, its bilinear sample (border
+    replicated) is added to ``total`` and 1 to ``count``."""
+    fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
+    hs, ws = depth.shape
+    for i in range(vertices.shape[0]):
+        if not vertices[i, 2] > 0:
+            continue
+        qx, qy, qz = _moved(vertices, i, R, t)
+        if not qz > _NEAR:
+            continue
+        inv_z = _ONE / qz
+        u = fx * qx * inv_z + cx
+        v = fy * qy * inv_z + cy
+        if not (u >= 0 and u <= ws - 1 and v >= 0 and v <= hs - 1):
+            continue
+        zs = depth[int(np.rint(v)), int(np.rint(u))]
+        if not abs(zs - qz) < gate:
+            continue
+        x0, y0 = int(np.floor(u)), int(np.floor(v))
+        ax, ay = u - np.float32(x0), v - np.float32(y0)
+        x1, y1 = min(x0 + 1, ws - 1), min(y0 + 1, hs - 1)
+        top = intensity[y0, x0] * (_ONE - ax) + intensity[y0, x1] * ax
+        bottom = intensity[y1, x0] * (_ONE - ax) + intensity[y1, x1] * ax
+        total[i] += top * (_ONE - ay) + bottom * ay
+        count[i] += _ONE

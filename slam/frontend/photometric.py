@@ -32,7 +32,12 @@ import cv2
 import numpy as np
 
 from slam.frontend.icp import IcpResult
-from slam.frontend.joint_kernels import geometric_rows, photometric_rows, weighted_system
+from slam.frontend.joint_kernels import (
+    geometric_rows,
+    photometric_rows,
+    warp_accumulate,
+    weighted_system,
+)
 from slam.frontend.rgbd_image import RgbdImage, _SourceLevel, _TargetLevel
 from slam.frontend.robust import median, robust_scale
 from slam.frontend.weighted_icp import vertex_map, without_blind_directions
@@ -85,24 +90,31 @@ def _warp_vertices(
 ) -> np.ndarray:
     """:func:`warp_intensity` of the destination's vertices ``V`` (N x 3, z = 0: no depth)
     from ``src`` (intensity, depth): N intensities."""
+    total = np.zeros(len(V), np.float32)
+    count = np.zeros(len(V), np.float32)
+    _warp_into(V, K, T_src_dst, src, gate_m, (total, count))
+    return np.where(count > 0, total, np.float32(np.nan))
+
+
+def _warp_into(
+    V: np.ndarray,
+    K: np.ndarray,
+    T_src_dst: np.ndarray,
+    src: tuple[np.ndarray, ...],
+    gate_m: float,
+    sums: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """:func:`_warp_vertices` added into ``sums`` (total, count; one compiled pass,
+    :func:`slam.frontend.joint_kernels.warp_accumulate`)."""
     src_intensity, src_depth_m = src
-    R, t = T_src_dst[:3, :3].astype(np.float32), T_src_dst[:3, 3].astype(np.float32)
-    Q = _tall_times(V, R.T) + t
-    z = Q[:, 2]
-    ok = (V[:, 2] > 0) & (z > 1e-3)
-    inv_z = np.float32(1.0) / np.where(ok, z, np.float32(1.0))
-    u = np.float32(K[0, 0]) * Q[:, 0] * inv_z + np.float32(K[0, 2])
-    v = np.float32(K[1, 1]) * Q[:, 1] * inv_z + np.float32(K[1, 2])
-    hs, ws = src_depth_m.shape
-    ok &= (u >= 0) & (u <= ws - 1) & (v >= 0) & (v <= hs - 1)
-    idx = np.flatnonzero(ok)
-    zs = src_depth_m[np.rint(v[idx]).astype(np.int64), np.rint(u[idx]).astype(np.int64)]
-    idx = idx[np.abs(zs - z[idx]) < gate_m]
-    out = np.full(len(V), np.nan, np.float32)
-    if len(idx):  # (the views may not overlap at all)
-        img = np.ascontiguousarray(src_intensity, np.float32)[..., None]
-        out[idx] = _sample(img, u[idx], v[idx])[:, 0]
-    return out
+    intrinsics = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], np.float32)
+    warp_accumulate(
+        np.ascontiguousarray(V, np.float32), intrinsics,
+        np.ascontiguousarray(T_src_dst[:3, :3], np.float32),
+        np.ascontiguousarray(T_src_dst[:3, 3], np.float32),
+        np.ascontiguousarray(src_intensity, np.float32),
+        np.ascontiguousarray(src_depth_m, np.float32), np.float32(gate_m), *sums,
+    )  # fmt: skip
 
 
 def mean_warped_intensity(
@@ -122,10 +134,7 @@ def mean_warped_intensity(
     for image, T_world_src in views:
         assert image.intensity is not None
         T_src_dst = inv_T(T_world_src) @ T_world_dst
-        warped = _warp_vertices(V, K, T_src_dst, (image.intensity[0], image.depth[0]), gate_m)
-        seen = np.isfinite(warped)
-        total += np.where(seen, warped, np.float32(0.0))
-        count += seen
+        _warp_into(V, K, T_src_dst, (image.intensity[0], image.depth[0]), gate_m, (total, count))
     out = np.full(len(V), np.nan, np.float32)
     np.divide(total, count, out=out, where=count > 0)
     return out.reshape(depth_m.shape)

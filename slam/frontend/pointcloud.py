@@ -5,12 +5,16 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from slam.frontend.depth_kernels import downsample, geometry
+
 #: A surface seen at up to this incidence angle is a surface, not a depth discontinuity.
 MAX_INCIDENCE_DEG = 75.0
+#: ... and a depth step up to this (metres) between neighbours, at any angle.
+MAX_DEPTH_JUMP_M = 0.05
 
 
 def normal_map(
-    vertex: np.ndarray, max_depth_jump_m: float = 0.05, f_px: float | None = None
+    vertex: np.ndarray, max_depth_jump_m: float = MAX_DEPTH_JUMP_M, f_px: float | None = None
 ) -> np.ndarray:
     """Normals from central differences of the vertex map, oriented towards the camera.
 
@@ -28,8 +32,21 @@ def normal_map(
     return n
 
 
+def geometry_rows(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(H * W, 8) float32 rows of a depth image: vertex (:func:`slam.frontend.weighted_icp.
+    vertex_map`), 0, normal (:func:`normal_map` with the focal length), 1 where the normal is
+    known else 0: one row of 32 bytes a pixel, one compiled pass
+    (:func:`slam.frontend.depth_kernels.geometry`, the same values)."""
+    h, w = depth_m.shape
+    xs = ((np.arange(w) - K[0, 2]) / K[0, 0]).astype(np.float32)
+    ys = ((np.arange(h) - K[1, 2]) / K[1, 1]).astype(np.float32)
+    jump = np.float32(2 * MAX_DEPTH_JUMP_M)
+    slope = np.float32(2 * np.tan(np.radians(MAX_INCIDENCE_DEG)) / float(K[0, 0]))
+    return geometry(np.ascontiguousarray(depth_m, np.float32), xs, ys, jump, slope)
+
+
 def odd_normal_map(
-    vertex: np.ndarray, max_depth_jump_m: float = 0.05, f_px: float | None = None
+    vertex: np.ndarray, max_depth_jump_m: float = MAX_DEPTH_JUMP_M, f_px: float | None = None
 ) -> np.ndarray:
     """:func:`normal_map` at the pixels of odd row and column (1, 3, ...; the last row and
     column excluded when even counts leave them without a neighbour): ((H - 1) // 2, (W - 1)
@@ -96,26 +113,9 @@ def _central_normals(
 def downsample_depth(depth_m: np.ndarray, max_diff_m: float = 0.03) -> np.ndarray:
     """Half-resolution depth: mean of each 2x2 block's valid values close to its top-left value.
 
-    Invalid (0) pixels never contribute, so holes do not pull depth towards the camera.
-    Computed in place on quarter-size buffers: a version stacking the four (H/2, W/2) planes
-    gave the same values 4x slower at 640x480 (its large temporaries are fresh memory).
-    """
-    h, w = depth_m.shape
-    d = np.asarray(depth_m[: h - h % 2, : w - w % 2], np.float32)
-    ref = d[0::2, 0::2]
-    total = ref.copy()  # the top-left value counts where it is valid; elsewhere the mean is 0
-    count = np.ones(ref.shape, np.float32)
-    diff = np.empty_like(total)
-    use, valid = np.empty(ref.shape, bool), np.empty(ref.shape, bool)
-    for x in (d[0::2, 1::2], d[1::2, 0::2], d[1::2, 1::2]):
-        np.abs(np.subtract(x, ref, out=diff), out=diff)
-        np.less(diff, np.float32(max_diff_m), out=use)
-        use &= np.greater(x, 0, out=valid)
-        np.add(total, x, out=total, where=use)
-        count += use
-    total /= count
-    total[~(ref > 0)] = 0.0  # (a NaN top-left too)
-    return total
+    Invalid (0) pixels never contribute, so holes do not pull depth towards the camera. One
+    compiled pass (:func:`slam.frontend.depth_kernels.downsample`)."""
+    return downsample(np.ascontiguousarray(depth_m, np.float32), np.float32(max_diff_m))
 
 
 def depth_pyramid(depth_m: np.ndarray, levels: int = 3) -> list[np.ndarray]:

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from slam.camera import scale_intrinsics
-from slam.frontend.pointcloud import depth_pyramid, normal_map, odd_normal_map
+from slam.frontend.pointcloud import depth_pyramid, geometry_rows, odd_normal_map
 from slam.frontend.weighted_icp import vertex_map
 
 
@@ -115,9 +115,7 @@ def _target_level(
     z = depth.astype(np.float32)
     if not geometry:
         return _TargetLevel((h, w), z.reshape(-1), np.zeros((0, 8), np.float32), photo)
-    vertex = vertex_map(z, K)
-    normal = normal_map(vertex, f_px=float(K[0, 0])).reshape(-1, 3)
-    return _TargetLevel((h, w), z.reshape(-1), _geometry(vertex.reshape(-1, 3), normal), photo)
+    return _TargetLevel((h, w), z.reshape(-1), geometry_rows(z, K), photo)
 
 
 class RgbdImage:
