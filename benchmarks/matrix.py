@@ -338,6 +338,14 @@ def compare(
     return "\n".join(lines) + "\n", worse
 
 
+def _commit(tree: Path) -> str:
+    """The short commit of ``tree`` (its working tree may differ: the run says which code)."""
+    out = subprocess.run(
+        ["git", "-C", str(tree), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    )
+    return out.stdout.strip() or "unknown"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tree", type=Path, default=None, help="source tree to import slam from")
@@ -410,6 +418,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     data = {
         "tree": str(args.tree or ROOT),
+        "commit": _commit(Path(args.tree or ROOT)),
         "repeats": args.repeats,
         "seconds": round(time.perf_counter() - t0, 1),
         "machine": machine(),

@@ -99,7 +99,7 @@ def render(matrix: dict, source: Path) -> str:
         "# Results",
         "",
         f"Today's default configuration on every shared sequence and the scene matrix: "
-        f"commit `{_commit()}`, {time.strftime('%Y-%m-%d', time.localtime(source.stat().st_mtime))},"
+        f"commit `{matrix.get('commit') or _commit()}`, {time.strftime('%Y-%m-%d', time.localtime(source.stat().st_mtime))},"
         f" {m.get('cpus', '?')} CPU cores, {m.get('platform', '?')}, Python "
         f"{m.get('python', '?')}. Written by `python benchmarks/results_page.py --run` from "
         f"`{source.relative_to(ROOT)}`, one run per row (run-to-run spreads: "
@@ -125,8 +125,9 @@ def render(matrix: dict, source: Path) -> str:
 
 
 def extra_sections() -> list[str]:
-    """The localisation and mesh-accuracy tables, from their own benchmarks' latest results
-    (``localisation-*.json``, ``mesh-accuracy-per-view.json``), when present."""
+    """The localisation, mesh-accuracy and kernel tables, from their own benchmarks' latest
+    results (``localisation-*.json``, ``mesh-accuracy-per-view.json``, ``kernels.json``), when
+    present."""
     out: list[str] = []
     loc = sorted(RESULTS.glob("localisation-*.json"))
     if loc:
@@ -164,6 +165,23 @@ def extra_sections() -> list[str]:
             "|---|---:|---:|",
         ]  # fmt: skip
         out += [f"| `{n}` | {r['median_mm']:.2f} | {r['p90_mm']:.2f} |" for n, r in rows.items()]
+    kern = RESULTS / "kernels.json"
+    if kern.is_file():
+        d = json.loads(kern.read_text())
+        w, h = d["size"]
+        out += [
+            "", "## Compiled passes against the numpy they replaced",
+            "",
+            f"`python benchmarks/kernels.py`: the same inputs (two `{d['sequence']}` frames at "
+            f"{w}x{h}), alternating in one process, median milliseconds a call.",
+            "",
+            "| pass | numpy | compiled | ratio |",
+            "|---|---:|---:|---:|",
+        ]  # fmt: skip
+        out += [
+            f"| {n} | {r['numpy_ms']:.2f} | {r['compiled_ms']:.2f} | {r['ratio']:.2f} |"
+            for n, r in d["rows"].items()
+        ]
     return out
 
 

@@ -6,6 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slam.frontend.joint_kernels import geometric_rows, photometric_rows, weighted_system
+from slam.frontend.photometric import _sample
 from slam.frontend.rgbd_image import RgbdImage, grey
 from slam.geometry import exp_se3
 from tests.frontend.test_photometric import wall_views
@@ -140,9 +141,8 @@ def _warp_reference(V, K, T, intensity, depth, gate):
     zs = depth[np.rint(v[idx]).astype(np.int64), np.rint(u[idx]).astype(np.int64)]
     idx = idx[np.abs(zs - z[idx]) < gate]
     out = np.full(len(V), np.nan, np.float32)
-    maps = [m[idx].reshape(1, -1).astype(np.float32) for m in (u, v)]
-    sample = cv2.remap(intensity, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    out[idx] = sample[0]
+    if len(idx):
+        out[idx] = _sample(np.ascontiguousarray(intensity)[..., None], u[idx], v[idx])[:, 0]
     return out
 
 
