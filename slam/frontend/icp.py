@@ -1,5 +1,13 @@
 """Projective point-to-plane ICP, coarse to fine (Open3D tensor odometry kernels do the per-pixel
-work: projective association, point-to-plane residuals with a Huber loss, 6x6 normal equations)."""
+work: projective association, point-to-plane residuals with a Huber loss, 6x6 normal equations),
+and the overlap score alignments are verified by (compiled, :mod:`slam.frontend.depth_kernels`).
+
+What Open3D's kernel computes (read in its source and reproduced to float rounding on rpy
+frames; the study branch ``kernel-icp-study``): target normals from its vertex map after a 5x5
+bilateral filter; the Hessian ``sum J J^T`` is not weighted by the loss, and the gradient takes
+Huber's influence as ``delta * Sign(r)`` with ``Sign`` of an integer, so a residual between
+``huber_delta_m`` and a metre adds to H and nothing to b: past the delta, Open3D's "Huber" is a
+cut of the gradient, not a down-weighting."""
 
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""Back-projection of depth images to vertex and normal maps, and depth pyramids (vectorised)."""
+"""Back-projection of depth images to vertex and normal maps, and depth pyramids (vectorised
+numpy; a pyramid level and a target's vertex + normal rows in one compiled pass each,
+:mod:`slam.frontend.depth_kernels`)."""
 
 from __future__ import annotations
 
