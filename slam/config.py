@@ -101,12 +101,6 @@ class ColourConfig:
     # strongest (standard deviations): colour joins every alignment, depth leaves that direction
     degenerate_ratio: float = 40.0
     photometric_ratio: float = 20.0  # ... joins (not fast, no gap) above this ratio too
-    # every frame refined against the previous image at this weight times colour's earned
-    # agreement with depth (0 = off; waiting for the kernel issue, docs/decisions.md)
-    colour_step_weight: float = 0.0
-    colour_step_iterations: int = 2  # Gauss-Newton steps of that refinement
-    colour_step_textured: float = 0.125  # fraction of pixels (fastest intensity change) it uses
-    colour_step_geometry_stride: int = 4  # depth's information on every n-th row and column
     # the colour a frame aligns to against the model: "keyframe" (the last keyframes' images
     # warped by the model's depth, averaged) or "model" (the TSDF's own, smeared colour)
     photometric_reference: str = "keyframe"
@@ -371,6 +365,11 @@ def _moved_into_sections(cls: type, data: dict[str, Any], where: str) -> dict[st
 _RETIRED = {
     "mapping.raycast_refine": "tracking against the trilinear surface lost on the scene matrix "
     "(docs/decisions.md)",
+    **{
+        f"tracking.colour.colour_step_{key}": "the colour step was removed: real rows no better, "
+        "the whole run slower (docs/decisions.md)"
+        for key in ("weight", "iterations", "textured", "geometry_stride")
+    },
 }
 
 

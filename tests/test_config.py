@@ -77,7 +77,7 @@ def test_unknown_key_suggests_the_right_one():
 
 
 def test_every_yaml_the_project_ships_loads():
-    """Each config YAML under benchmarks/ loads (colour_step_full.yaml named a removed key);
+    """Each config YAML under benchmarks/ loads;
     each bench suite under scripts/ loads as a suite."""
     from pathlib import Path
 

@@ -74,8 +74,6 @@ class Attempt:
     iterations: list[int] | None = None
     # the last frame-to-frame estimate of T_prev_cur by depth alone that was accepted
     f2f: np.ndarray | None = None
-    # the estimate before tracking.colour.colour_step_weight moved it (depth against the model)
-    T_world_depth: np.ndarray | None = None
     # a photometric alignment can reach the frame's pose (no fast motion, no gap before it)
     colour_reach: bool = True
     # the frame's ORB matches against the tracker's candidates, made once (Attempt.evidence)

@@ -4,8 +4,7 @@
 - :func:`check_motion`: a step that breaks the motion pattern is aligned again with colour
   joining depth;
 - :func:`colour_first_step`: the first step since tracking (re)started, aligned again once the
-  step says where the colour cameras were;
-- :func:`colour_step` (opt-in): the estimate refined against the previous frame's colour.
+  step says where the colour cameras were.
 
 Each takes the tracking config, the tracker's state and the frame's :class:`Attempt`, and
 updates the attempt; the tracker calls them as its named stages.
@@ -19,13 +18,12 @@ import numpy as np
 
 from slam.config import TrackingConfig
 from slam.frontend.alignment import Attempt, align_from, colour_prefers, joint_weight
-from slam.frontend.colour_step import StepSettings, step_with_colour
 from slam.frontend.model import TrackingModel
 from slam.frontend.motion import colour_motion
 from slam.frontend.tracker_state import TrackerState
 from slam.geometry import exp_se3, inv_T, log_se3, translation_norm
 
-__all__ = ["check_motion", "colour_first_step", "colour_step", "usual_departure"]
+__all__ = ["check_motion", "colour_first_step", "usual_departure"]
 
 log = logging.getLogger(__name__)
 
@@ -173,44 +171,6 @@ def colour_first_step(
     assert estimate is not None  # nothing was tried since the list was emptied
     if estimate[2] >= cfg.icp.min_overlap and estimate[1].fitness >= cfg.icp.min_fitness:
         att.keep(*estimate)
-
-
-def colour_step(cfg: TrackingConfig, state: TrackerState, att: Attempt) -> None:
-    """Stage 4d (``tracking.colour.colour_step_weight`` > 0, where colour is registered): the
-    estimate refined against the previous frame's image, depth's estimate as a prior with
-    its information (:func:`slam.frontend.colour_step.colour_refine`), at the weight colour
-    has earned on this recording (:class:`~slam.frontend.colour_step.ColourAgreement`:
-    colour's disagreement with depth where depth is surest, over depth's own). The colour
-    cameras are where :meth:`predict` or, on the first step, :meth:`colour_first_step`
-    placed them. Not under a large motion (a fast step, a gap: the photometric term's basin
-    is a few pixels; on the cabinet, frames 0.66 s apart, its worst step went 29 -> 41 mm).
-    The first step's motion is unknown, not large: its RANSAC seed puts colour in reach."""
-    st, prev = state, att.prev_frame
-    att.T_world_depth = att.T_world_cam
-    if not (cfg.colour.colour_step_weight > 0 and att.ok and prev is not None):
-        return
-    if att.large and not att.first_step:  # fast, or after a gap: beyond colour's basin
-        return
-    levels = len(cfg.icp.iterations)
-    source, target = att.frame.photometric_image(levels), prev.photometric_image(levels)
-    if source is None or target is None:
-        return
-    assert att.T_world_cam is not None
-    depth_step = None  # this frame's depth estimate relative to the previous frame's
-    if st.T_world_prev_depth is not None:
-        depth_step = inv_T(st.T_world_prev_depth) @ att.T_world_cam
-    T_prev_cur = inv_T(att.T_world_prev) @ att.T_world_cam
-    settings = StepSettings(
-        cfg.icp.max_correspondence_m, cfg.icp.huber_delta_m,
-        cfg.colour.colour_step_textured, cfg.colour.colour_step_geometry_stride,
-    )  # fmt: skip
-    refined = step_with_colour(
-        source, target, T_prev_cur, st.colour_agreement,
-        (depth_step, att.f2f), cfg.colour.colour_step_weight, cfg.colour.colour_step_iterations,
-        settings, (att.frame.T_depth_colour, prev.T_depth_colour),
-    )  # fmt: skip
-    if refined is not T_prev_cur:
-        att.T_world_cam = att.T_world_prev @ refined
 
 
 def usual_departure(cfg: TrackingConfig, recent: list[float], dt_s: float) -> float:

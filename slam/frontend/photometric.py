@@ -181,9 +181,7 @@ def _project(
 
 _NormalEquations = tuple[np.ndarray, np.ndarray]  # (H, b) of one term
 # both terms' equations, the geometric residuals and the correspondences' depths
-_Parts = tuple[
-    _NormalEquations | None, _NormalEquations | None, np.ndarray | None, np.ndarray | None
-]
+_Parts = tuple[_NormalEquations, _NormalEquations | None, np.ndarray, np.ndarray | None]
 
 
 def _term_equations(
@@ -193,7 +191,6 @@ def _term_equations(
     T: np.ndarray,
     terms: _Terms,
     T_colour: np.ndarray | None = None,
-    geometric_term: bool = True,
 ) -> _Parts | None:
     """The two terms of :func:`joint_align` at pose ``T`` (``T_target_source``), apart:
     ``((H_geo, b_geo), (H_pho, b_pho) or None, geometric residuals, depths of the geometric
@@ -201,9 +198,8 @@ def _term_equations(
     photometric term is None when its weight is 0, either side has no intensity, or fewer than
     6 points are visible. ``T_colour``: the pose of the source's colour camera in the target's
     colour camera, when the colour images were not taken at their depth images' instants
-    (None: ``T``). The depths come with the photometric term only; without the
-    ``geometric_term`` its equations, residuals and the depths are None. One compiled pass
-    over the source points (:mod:`slam.frontend.joint_kernels`) per term."""
+    (None: ``T``). The depths come with the photometric term only. One compiled pass over the
+    source points (:mod:`slam.frontend.joint_kernels`) per term."""
     intrinsics = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], np.float32)
     n = len(src.points)
     J = np.empty((n, 6), np.float32)
@@ -211,21 +207,15 @@ def _term_equations(
     z = np.empty(n, np.float32)
     visible = np.empty(n, np.int64)
     R, t = T[:3, :3].astype(np.float32), T[:3, 3].astype(np.float32)
-    n_assoc, n_geo, n_vis = geometric_rows(
+    _, n_geo, n_vis = geometric_rows(
         src.points, R, t, intrinsics, tgt.depth, tgt.geometry, tgt.shape, terms.gate,
-        geometric_term, J, r, z, visible,
+        True, J, r, z, visible,
     )  # fmt: skip
-    geometric: _NormalEquations | None = None
-    rg = z_geo = None
-    if not geometric_term:
-        if n_assoc < 6:
-            return None
-    else:  # point-to-plane against the projectively associated target vertex
-        if n_geo < 6:
-            return None
-        rg, z_geo = r[:n_geo].copy(), z[:n_geo].copy()
-        s_g = robust_scale(rg, terms.min_geo_scale_m)
-        geometric = weighted_system(J, r, n_geo, 0.0, s_g, terms.delta_g, 1.0)
+    if n_geo < 6:  # point-to-plane against the projectively associated target vertex
+        return None
+    rg, z_geo = r[:n_geo].copy(), z[:n_geo].copy()
+    s_g = robust_scale(rg, terms.min_geo_scale_m)
+    geometric = weighted_system(J, r, n_geo, 0.0, s_g, terms.delta_g, 1.0)
     photometric = None
     if terms.photometric_weight > 0 and src.intensity is not None and tgt.photo is not None:
         if n_vis >= 6:  # on source points the target surface does not hide
@@ -268,7 +258,6 @@ def _joint_equations(parts: _Parts, terms: _Terms) -> tuple[np.ndarray, np.ndarr
     """One Gauss-Newton iteration's normal equations ``(H, b)`` of :func:`joint_align` from its
     two terms (:func:`_term_equations`), and the geometric residuals of its correspondences."""
     geometric, photometric, rg, z_geo = parts
-    assert geometric is not None and rg is not None
     H, b = geometric
     if photometric is not None:
         if terms.degenerate_ratio > 0:  # where depth is blind, colour decides alone

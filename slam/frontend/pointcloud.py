@@ -47,19 +47,6 @@ def geometry_rows(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
     return geometry(np.ascontiguousarray(depth_m, np.float32), xs, ys, jump, slope)
 
 
-def odd_normal_map(
-    vertex: np.ndarray, max_depth_jump_m: float = MAX_DEPTH_JUMP_M, f_px: float | None = None
-) -> np.ndarray:
-    """:func:`normal_map` at the pixels of odd row and column (1, 3, ...; the last row and
-    column excluded when even counts leave them without a neighbour): ((H - 1) // 2, (W - 1)
-    // 2, 3), from the same central differences of the full-resolution vertex map, at a
-    quarter of the cost."""
-    x, y, z = (np.asarray(vertex[..., k], np.float32) for k in range(3))
-    h, w = z.shape
-    rows, cols = slice(1, h - 1 - (h % 2 == 0), 2), slice(1, w - 1 - (w % 2 == 0), 2)
-    return _central_normals((x, y, z), (rows, cols), 2, max_depth_jump_m, f_px)
-
-
 def _central_normals(
     xyz: tuple[np.ndarray, np.ndarray, np.ndarray],
     centres: slice | tuple[slice, slice],

@@ -1,6 +1,5 @@
-"""A view's depth and intensity prepared for the alignments of
-:mod:`slam.frontend.photometric` and :mod:`slam.frontend.colour_step`: pyramids, back-projected
-source points (all, or the most textured), target levels with vertices, normals and intensity
+"""A view's depth and intensity prepared for the alignments of :mod:`slam.frontend.photometric`:
+pyramids, back-projected source points, target levels with vertices, normals and intensity
 gradients. Pixels follow the pinhole convention (pixel (u, v) is the ray ``K^-1 [u, v, 1]``;
 pyramids are 2x2 box averages, see :func:`slam.camera.scale_intrinsics`)."""
 
@@ -12,8 +11,7 @@ import cv2
 import numpy as np
 
 from slam.camera import scale_intrinsics
-from slam.frontend.pointcloud import depth_pyramid, geometry_rows, odd_normal_map
-from slam.frontend.weighted_icp import vertex_map
+from slam.frontend.pointcloud import depth_pyramid, geometry_rows
 
 
 def grey(color: np.ndarray, factor: int = 1) -> np.ndarray:
@@ -139,11 +137,9 @@ class RgbdImage:
             )
         self.K = [scale_intrinsics(K, 2**lv) for lv in range(levels)]
         self._src: dict[tuple[int, int], _SourceLevel] = {}  # (level, step)
-        self._textured: dict[tuple[int, float], _SourceLevel] = {}  # (level, fraction)
         self._tgt: dict[int, _TargetLevel] = {}
         self._photo_tgt: dict[int, _TargetLevel] = {}  # without vertices and normals
         self._photo: dict[int, np.ndarray] = {}
-        self._odd: tuple[_TargetLevel, np.ndarray] | None = None
 
     def photo(self, level: int) -> np.ndarray | None:
         """:func:`_photo` of the intensity at ``level`` (None without intensity)."""
@@ -159,52 +155,6 @@ class RgbdImage:
             inten = None if self.intensity is None else self.intensity[level]
             self._src[key] = _source_level(self.depth[level], inten, self.K[level], step)
         return self._src[key]
-
-    def textured(self, level: int, fraction: float) -> _SourceLevel:
-        """The source's pixels with depth whose intensity changes fastest (central
-        differences), ``fraction`` of them: where the photometric term's information is (its
-        Jacobian is the image gradient)."""
-        key = (level, fraction)
-        if key not in self._textured:
-            photo = self.photo(level)
-            assert photo is not None
-            depth = self.depth[level]
-            g2 = photo[..., 1] ** 2 + photo[..., 2] ** 2
-            g2[depth <= 0] = -1.0
-            flat = g2.reshape(-1)
-            n = np.count_nonzero(flat >= 0)
-            m = int(np.ceil(fraction * n))
-            if m >= n:
-                chosen = np.flatnonzero(flat >= 0.0)
-            else:  # the m strongest; of a tie at the threshold (quantised images), evenly spread
-                threshold = np.partition(flat, flat.size - m)[flat.size - m]
-                chosen = np.flatnonzero(flat > threshold)
-                if threshold > 0.0:
-                    tie = np.flatnonzero(flat == threshold)
-                    pick = np.linspace(0, len(tie) - 1, m - len(chosen)).astype(np.int64)
-                    chosen = np.sort(np.concatenate([chosen, tie[pick]]))
-            v, u = np.divmod(chosen, depth.shape[1])
-            points = _pixels(depth, self.K[level], v, u)
-            self._textured[key] = _SourceLevel(points, photo[v, u, 0])
-        return self._textured[key]
-
-    def odd_target(self) -> tuple[_TargetLevel, np.ndarray]:
-        """The finest level's pixels of odd row and column as a target (no intensity) and the
-        intrinsics of that grid: a quarter of the pixels, each with its own depth and the
-        normal of the full-resolution central differences (:func:`odd_normal_map`), unlike a
-        pyramid level, whose averages across depth edges are surfaces no camera saw."""
-        if self._odd is None:
-            depth, K = self.depth[0], self.K[0]
-            vertex = vertex_map(depth, K)
-            normal = odd_normal_map(vertex, f_px=float(K[0, 0]))
-            h, w = normal.shape[:2]
-            v = vertex[1 : 2 * h : 2, 1 : 2 * w : 2].reshape(-1, 3)
-            n = normal.reshape(-1, 3)
-            K_odd = np.array([[K[0, 0] / 2, 0.0, (K[0, 2] - 1) / 2],
-                              [0.0, K[1, 1] / 2, (K[1, 2] - 1) / 2], [0.0, 0.0, 1.0]])  # fmt: skip
-            level = _TargetLevel((h, w), np.ascontiguousarray(v[:, 2]), _geometry(v, n), None)
-            self._odd = (level, K_odd)
-        return self._odd
 
     def target(self, level: int, geometry: bool = True) -> _TargetLevel:
         """The view as a target at ``level``; without ``geometry`` (for the photometric term

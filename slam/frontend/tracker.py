@@ -21,9 +21,7 @@ rescued by ORB + RANSAC against the last keyframes.
    prediction); depth slides along a wall filling the view, texture does not;
    :meth:`~Tracker.colour_first_step`: the
    first step, aligned with colour taken off the depth's instant, again once the step gives
-   where the colour cameras were; :meth:`~Tracker.colour_step` (opt-in,
-   ``tracking.colour.colour_step_weight``): the estimate refined against the previous frame's
-   colour, depth's estimate a prior, at the weight colour has earned on the recording;
+   where the colour cameras were;
 5. :meth:`~Tracker.verify`: the checks; after a gap, or with an overlap far below the recent
    frames', the pose must be supported by ORB matches;
 6. :meth:`~Tracker.commit`: the pose becomes the previous frame of the next one, and maybe a
@@ -183,7 +181,6 @@ class Tracker:
         self.alternatives(att, model)
         self.check_motion(att, model)
         self.colour_first_step(att, model)
-        self.colour_step(att)
         self.verify(att)
         T = self.commit(att)
         att.status.ms = (time.perf_counter() - t0) * 1e3 + p.prep_ms
@@ -324,11 +321,6 @@ class Tracker:
         aligned again once it says where the colour cameras were)."""
         colour_stages.colour_first_step(self.cfg, self.state, att, model)
 
-    def colour_step(self, att: Attempt) -> None:
-        """Stage 4d: :func:`slam.frontend.colour_stages.colour_step` (opt-in: the estimate
-        refined against the previous frame's colour)."""
-        colour_stages.colour_step(self.cfg, self.state, att)
-
     def verify(self, att: Attempt) -> None:
         """Stage 5: record the estimate's checks in the status. A passing estimate after a gap,
         or with an overlap far below the recent frames' (a jump the prediction did not see,
@@ -387,8 +379,7 @@ class Tracker:
         p.T_depth_colour = colour_motion(step, att.dt_s, p.frame.color_dt_s)
         if att.feats is not None:
             att.feats = p.features
-        moved = att.T_world_depth is not None and att.T_world_depth is not att.T_world_cam
-        st.advance(p, T, velocity, att.overlap, att.feats, att.T_world_depth if moved else None)
+        st.advance(p, T, velocity, att.overlap, att.feats)
         if att.acceleration is not None:
             st.record_departure(att.acceleration, cfg.motion.unusual_departure_window)
         kf = self.last_keyframe

@@ -3,8 +3,7 @@
 The previous frame (pose, depth, pyramids, features, timestamp), the motion model's velocity,
 the keyframes made so far, the recent overlaps (for the suspect-overlap check) and the colour
 references (the last keyframes' images, which the joint alignment against the model warps into
-the model's view), and for the opt-in colour step the previous frame's pose by depth alone and
-colour's measured agreement with depth (:class:`~slam.frontend.colour_step.ColourAgreement`).
+the model's view).
 :class:`~slam.frontend.tracker.Tracker` owns one and its stages update it;
 :meth:`TrackerState.to_dict` / :meth:`TrackerState.from_dict` are its checkpoint form (plain
 data and arrays).
@@ -18,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from slam.errors import SlamError
-from slam.frontend.colour_step import ColourAgreement
 from slam.frontend.frame import PreparedFrame
 from slam.frontend.pointcloud import depth_pyramid
 from slam.frontend.rgbd_image import RgbdImage
@@ -46,11 +44,6 @@ class TrackerState:
     # are aligned to against the model (tracking.colour.photometric_reference: keyframe); empty
     # without colour
     references: list[tuple[RgbdImage, np.ndarray]] = field(default_factory=list)
-    # the previous frame's pose by depth against the model (before the colour step,
-    # tracking.colour.colour_step_weight, moved it), and how far colour has been trusted on this
-    # recording
-    T_world_prev_depth: np.ndarray | None = None
-    colour_agreement: ColourAgreement = field(default_factory=ColourAgreement)
 
     @property
     def velocity_known(self) -> bool:
@@ -69,7 +62,6 @@ class TrackerState:
         """Tracking starts again at a frame with a known pose, from rest (the colour
         references start again with it: a new segment's world is not the old one's)."""
         self.T_world_prev = T_world_cam
-        self.T_world_prev_depth = T_world_cam
         self.references = []
         self.velocity = np.eye(4)
         self.prev_depth = p.depth_m
@@ -87,15 +79,12 @@ class TrackerState:
         velocity: np.ndarray,
         overlap: float,
         feats: FeatureSet | None,
-        T_world_depth: np.ndarray | None = None,
     ) -> None:
         """A tracked frame becomes the previous one (``velocity``: its motion per usual frame
-        interval; ``overlap``: with the model, for the suspect-overlap check of the next;
-        ``T_world_depth``: its pose by depth against the model, when colour moved it)."""
+        interval; ``overlap``: with the model, for the suspect-overlap check of the next)."""
         self.recent_overlaps = (self.recent_overlaps + [float(overlap)])[-10:]
         self.velocity = velocity
         self.T_world_prev = T_world_cam
-        self.T_world_prev_depth = T_world_cam if T_world_depth is None else T_world_depth
         self.prev_depth = p.depth_m
         self.prev_pyramid = p.pyramid
         self.prev_frame = p
@@ -150,8 +139,6 @@ class TrackerState:
             "recent_accelerations": list(self.recent_accelerations),
             "t_prev": self.t_prev,
             "keyframes": [kf.id for kf in self.keyframes],
-            "T_world_prev_depth": self.T_world_prev_depth,
-            "colour_agreement": np.asarray(self.colour_agreement.factors, float).reshape(-1, 2),
             "prev_frame": _frame_state(self.prev_frame),
         }
 
@@ -186,14 +173,6 @@ class TrackerState:
             recent_overlaps=list(d["recent_overlaps"]),
             recent_accelerations=[float(a) for a in d.get("recent_accelerations", [])],
             t_prev=d.get("t_prev"),
-            # a state saved before the colour step: the pose was depth's
-            T_world_prev_depth=d.get("T_world_prev_depth", d["T_world_prev"]),
-            colour_agreement=ColourAgreement(
-                [
-                    (float(a), float(b))
-                    for a, b in np.reshape(d.get("colour_agreement", []), (-1, 2))
-                ]
-            ),
         )
 
 

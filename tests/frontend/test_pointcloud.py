@@ -8,7 +8,6 @@ from slam.frontend.pointcloud import (
     depth_pyramid,
     downsample_depth,
     normal_map,
-    odd_normal_map,
 )
 
 K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
@@ -129,15 +128,3 @@ def test_bilateral_smooths_noise_keeps_edges_and_holes():
     # no bleeding across the step, and no pull towards 0 next to the hole
     assert np.abs(out[:, 39] - 1.0).max() < 0.02 and np.abs(out[:, 40] - 2.0).max() < 0.02
     assert np.abs(out[19, 10:15] - 1.0).max() < 0.02
-
-
-def test_odd_normal_map_is_the_normal_map_at_odd_pixels():
-    rng = np.random.default_rng(0)
-    for h, w in ((240, 320), (241, 321), (9, 12)):
-        V = rng.normal(size=(h, w, 3)).astype(np.float32)
-        V[..., 2] = np.abs(V[..., 2]) + 1.0
-        V[rng.random((h, w)) < 0.1] = 0.0
-        for f_px in (None, 200.0):
-            odd = odd_normal_map(V, f_px=f_px)
-            rows, cols = np.arange(1, h - 1, 2), np.arange(1, w - 1, 2)
-            np.testing.assert_array_equal(odd, normal_map(V, f_px=f_px)[np.ix_(rows, cols)])

@@ -787,34 +787,6 @@ def _plain(value) -> bool:
     return value is None or isinstance(value, (bool, int, float, str, np.ndarray, np.generic))
 
 
-def test_the_colour_step_refines_each_frame_at_the_weight_colour_earned(world, model):
-    """With ``tracking.colour.colour_step_weight`` every frame is refined against the previous frame's
-    colour; colour's weight is measured from the frames (synthetic colour is as exact as the
-    depth: it earns weight), and the state keeps each frame's depth estimate and the
-    measurements (checkpoints too)."""
-    tracker = _tracker_at(world, 4, colour_step_weight=1.0)
-    for i in range(5, 10):
-        T, status = tracker.track(world.frame(i), model)
-        assert status.ok
-        dt, dr = _errors(T, world.poses[i])
-        assert dt < 0.002 and dr < 0.1
-    state = tracker.state
-    assert len(state.colour_agreement.factors) >= 3 and state.colour_agreement.weight() > 0.1
-    assert state.T_world_prev_depth is not None
-    assert translation_norm(inv_T(state.T_world_prev_depth) @ state.T_world_prev) < 0.002
-    saved = tracker.state_dict()
-    keyframes = {kf.id: kf for kf in state.keyframes}
-    back = Tracker(TrackingConfig(colour=ColourConfig(colour_step_weight=1.0)))
-    back.load_state_dict(saved, keyframes)
-    assert back.state.colour_agreement.factors == state.colour_agreement.factors
-    np.testing.assert_array_equal(back.state.T_world_prev_depth, state.T_world_prev_depth)
-    # without the step, the depth estimate is the pose
-    plain = _tracker_at(world, 4)
-    plain.track(world.frame(5), model)
-    assert np.array_equal(plain.state.T_world_prev_depth, plain.state.T_world_prev)
-    assert plain.state.colour_agreement.factors == []
-
-
 def test_state_dict_round_trip_gives_the_same_next_result(world, model):
     a = _tracker_at(world, 4, photometric_reference="keyframe")
     for i in range(5, 8):
