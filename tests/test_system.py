@@ -33,12 +33,16 @@ def test_step_and_finish_equal_run(frames):
 
 
 def test_a_config_written_with_a_retired_key_still_loads(caplog):
-    """A run folder's config.yaml written before ``mapping.raycast_refine`` was retired has
-    the key: it loads, with a warning that the key is ignored."""
+    """A run folder's config.yaml written before ``mapping.raycast_refine`` or the colour step
+    were retired has their keys: it loads, with a warning that each key is ignored."""
+    tracking = {**FAST["tracking"], "colour": {"colour_step_weight": 1.0}}
+    old = {**FAST, "mapping": {"raycast_refine": True}, "tracking": tracking}
     with caplog.at_level("WARNING"):
-        cfg = config_from_dict({**FAST, "mapping": {"raycast_refine": True}})
+        cfg = config_from_dict(old)
     assert cfg.mapping == config_from_dict(FAST).mapping
+    assert cfg.tracking.colour == config_from_dict(FAST).tracking.colour
     assert "mapping.raycast_refine' is ignored" in caplog.text
+    assert "tracking.colour.colour_step_weight' is ignored" in caplog.text
 
 
 def test_state_dict_round_trip_continues_the_run(frames, tmp_path):
