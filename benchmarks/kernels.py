@@ -61,24 +61,17 @@ def _cases(frames, K):
     from slam.frontend.rgbd_image import RgbdImage, _geometry
     from slam.frontend.weighted_icp import depth_information, vertex_map
     from slam.geometry import exp_se3
-    from tests.frontend.test_depth_kernels import _downsample_reference, _reference
+    from tests.frontend.test_depth_kernels import (
+        _downsample_reference,
+        _information_reference,
+        _reference,
+    )
     from tests.frontend.test_joint_kernels import _warp_reference
 
     (d0, g0), (d1, g1) = frames
     T = exp_se3(np.array([0.01, -0.005, 0.004, 0.01, 0.005, -0.008]))
     noise = DepthNoise()
     views = [(RgbdImage(d1, g1, K, 1), T), (RgbdImage(d0, g0, K, 1), np.eye(4))]
-
-    def numpy_information():
-        d = np.where((d0 > 0) & (d0 < 4.0), d0, np.float32(0.0))
-        vertex = vertex_map(d, K)
-        normal = normal_map(vertex, f_px=float(K[0, 0]))
-        ok = normal[..., 2] != 0
-        ok[:, 1::2] = False
-        p, n = vertex[ok].astype(np.float64), normal[ok].astype(np.float64)
-        J = np.concatenate([np.cross(p, n), n], axis=1)
-        w = 1.0 / noise.sigma(p[:, 2]).astype(np.float64) ** 2
-        return (J * w[:, None]).T @ J, np.partition(p[:, 2], len(p) // 2)[len(p) // 2]
 
     def numpy_geometry():
         vertex = vertex_map(d0, K)
@@ -103,7 +96,7 @@ def _cases(frames, K):
         ),
         "target vertices + normals (geometry_rows)": (numpy_geometry, lambda: geometry_rows(d0, K)),
         "frame's own information (depth_information)": (
-            numpy_information,
+            lambda: _information_reference(d0, K, 4.0, noise),
             lambda: depth_information(d0, K, 4.0, noise),
         ),
         "two reference views warped (mean_warped_intensity)": (

@@ -149,8 +149,7 @@ def test_geometry_rows_are_vertex_map_and_normal_map(seed, shape):
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1))
 def test_information_is_the_numpy_it_replaced(seed):
-    from slam.frontend.pointcloud import normal_map
-    from slam.frontend.weighted_icp import depth_information, vertex_map
+    from slam.frontend.weighted_icp import depth_information
 
     rng = np.random.default_rng(seed)
     h, w = 48, 64
@@ -160,8 +159,17 @@ def test_information_is_the_numpy_it_replaced(seed):
     depth[rng.random((h, w)) < 0.1] = 0.0
     noise = DepthNoise()
     H, median_z = depth_information(depth, K, 3.5, noise)
-    # the numpy it replaced
-    d = np.where((depth > 0) & (depth < 3.5), depth, np.float32(0.0))
+    ref_H, ref_median_z = _information_reference(depth, K, 3.5, noise)
+    np.testing.assert_allclose(H, ref_H, rtol=1e-10)
+    assert median_z == ref_median_z
+
+
+def _information_reference(depth, K, depth_max, noise):
+    """The numpy :func:`~slam.frontend.weighted_icp.depth_information` replaced."""
+    from slam.frontend.pointcloud import normal_map
+    from slam.frontend.weighted_icp import vertex_map
+
+    d = np.where((depth > 0) & (depth < depth_max), depth, np.float32(0.0))
     vertex = vertex_map(d, K)
     normal = normal_map(vertex, f_px=float(K[0, 0]))
     ok = normal[..., 2] != 0
@@ -169,5 +177,4 @@ def test_information_is_the_numpy_it_replaced(seed):
     p, n = vertex[ok].astype(np.float64), normal[ok].astype(np.float64)
     J = np.concatenate([np.cross(p, n), n], axis=1)
     wt = 1.0 / noise.sigma(p[:, 2]).astype(np.float64) ** 2
-    np.testing.assert_allclose(H, (J * wt[:, None]).T @ J, rtol=1e-10)
-    assert median_z == float(np.partition(p[:, 2], len(p) // 2)[len(p) // 2])
+    return (J * wt[:, None]).T @ J, float(np.partition(p[:, 2], len(p) // 2)[len(p) // 2])
