@@ -57,10 +57,11 @@ def _cases(frames, K):
     from slam.camera import DepthNoise, scale_intrinsics
     from slam.frontend import photometric
     from slam.frontend.icp import projective_agreement
-    from slam.frontend.pointcloud import downsample_depth, geometry_rows, normal_map
-    from slam.frontend.rgbd_image import RgbdImage, _geometry
+    from slam.frontend.pointcloud import downsample_depth, geometry_rows
+    from slam.frontend.rgbd_image import RgbdImage
     from slam.frontend.weighted_icp import depth_information, vertex_map
     from slam.geometry import exp_se3
+    from tests.frontend.reference import geometry_reference, normal_map
     from tests.frontend.test_depth_kernels import (
         _downsample_reference,
         _information_reference,
@@ -76,7 +77,7 @@ def _cases(frames, K):
     def numpy_geometry():
         vertex = vertex_map(d0, K)
         normal = normal_map(vertex, f_px=float(K[0, 0]))
-        return _geometry(vertex.reshape(-1, 3), normal.reshape(-1, 3))
+        return geometry_reference(vertex.reshape(-1, 3), normal.reshape(-1, 3))
 
     def numpy_warp():
         V = vertex_map(d0, K).reshape(-1, 3)

@@ -191,7 +191,7 @@ def information(geometry, width, noise):  # pragma: no cover - compiled
 def geometry(depth, xs, ys, jump, slope):  # pragma: no cover - compiled
     """The rows of :attr:`slam.frontend.rgbd_image._TargetLevel.geometry` of a depth image
     (H x W float32): vertex ``z * (xs[u], ys[v], 1)`` (``xs``, ``ys``: float32 ray slopes), 0,
-    the normal of :func:`slam.frontend.pointcloud.normal_map` (central differences over one
+    the normal of :func:`slam.frontend.pointcloud.geometry_rows` (central differences over one
     pixel each side, 0 across a depth step over ``max(jump, slope * z)`` or next to a pixel
     without depth; oriented towards the camera), and 1 where the normal is known. The
     arithmetic is numpy's, type for type (float32, the orientation's division in float64)."""

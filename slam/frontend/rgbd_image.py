@@ -69,15 +69,6 @@ class _TargetLevel:
         return self.geometry[:, 7] > 0
 
 
-def _geometry(vertex: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """:attr:`_TargetLevel.geometry` of (N, 3) vertices and normals."""
-    out = np.zeros((len(vertex), 8), np.float32)
-    out[:, :3] = vertex
-    out[:, 4:7] = normal
-    out[:, 7] = np.any(normal != 0, axis=1)
-    return out
-
-
 def _pixels(depth: np.ndarray, K: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
     """(N, 3) float32 camera-frame points of the pixels (``v``, ``u``) of a depth image."""
     z = depth[v, u].astype(np.float32)

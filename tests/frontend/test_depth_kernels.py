@@ -126,9 +126,9 @@ def test_downsample_is_the_numpy_it_replaced(seed, shape):
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([(48, 64), (24, 32), (5, 7)]))
 def test_geometry_rows_are_vertex_map_and_normal_map(seed, shape):
-    from slam.frontend.pointcloud import geometry_rows, normal_map
-    from slam.frontend.rgbd_image import _geometry
+    from slam.frontend.pointcloud import geometry_rows
     from slam.frontend.weighted_icp import vertex_map
+    from tests.frontend.reference import geometry_reference, normal_map
 
     rng = np.random.default_rng(seed)
     h, w = shape
@@ -142,7 +142,8 @@ def test_geometry_rows_are_vertex_map_and_normal_map(seed, shape):
     depth[rng.random((h, w)) < 0.1] = 0.0
     depth[:, w // 2 :] += np.float32(rng.choice([0.0, 0.04, 0.5]))  # a depth step, or not
     vertex = vertex_map(depth, K)
-    ref = _geometry(vertex.reshape(-1, 3), normal_map(vertex, f_px=float(K[0, 0])).reshape(-1, 3))
+    normal = normal_map(vertex, f_px=float(K[0, 0])).reshape(-1, 3)
+    ref = geometry_reference(vertex.reshape(-1, 3), normal)
     assert np.array_equal(geometry_rows(depth, K), ref)
 
 
@@ -166,8 +167,8 @@ def test_information_is_the_numpy_it_replaced(seed):
 
 def _information_reference(depth, K, depth_max, noise):
     """The numpy :func:`~slam.frontend.weighted_icp.depth_information` replaced."""
-    from slam.frontend.pointcloud import normal_map
     from slam.frontend.weighted_icp import vertex_map
+    from tests.frontend.reference import normal_map
 
     d = np.where((depth > 0) & (depth < depth_max), depth, np.float32(0.0))
     vertex = vertex_map(d, K)

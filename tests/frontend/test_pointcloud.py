@@ -7,8 +7,9 @@ from slam.frontend.pointcloud import (
     bilateral_depth,
     depth_pyramid,
     downsample_depth,
-    normal_map,
+    geometry_rows,
 )
+from tests.frontend.reference import normal_map
 
 K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
 
@@ -24,12 +25,18 @@ def test_backproject_then_project_returns_the_pixel(z, u, v):
     assert abs(vert[v, u, 2] - np.float32(z)) < 1e-6
 
 
+def _normals(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(H, W, 3) normals of a depth image, as the tracker computes them
+    (:func:`geometry_rows`)."""
+    return geometry_rows(depth, K)[:, 4:7].reshape(*depth.shape, 3)
+
+
 def test_normals_of_a_tilted_plane():
     # plane z = 2 + 0.5 x  -> normal ~ (0.5, 0, -1) normalised, facing the camera
     u, v = np.meshgrid(np.arange(640), np.arange(480))
     xn = (u - K[0, 2]) / K[0, 0]
     z = 2.0 / (1 - 0.5 * xn)
-    n = normal_map(backproject(z.astype(np.float32), K))
+    n = _normals(z.astype(np.float32), K)
     expected = np.array([0.5, 0.0, -1.0]) / np.linalg.norm([0.5, 0.0, -1.0])
     inner = n[5:-5, 5:-5].reshape(-1, 3)
     assert np.abs(inner - expected).max() < 1e-3
@@ -39,7 +46,7 @@ def test_normals_zero_at_holes_and_edges():
     depth = np.full((48, 64), 2.0, np.float32)
     depth[10, 10] = 0.0
     depth[:, 40:] = 3.0  # a 1 m step
-    n = normal_map(backproject(depth, K))
+    n = _normals(depth, K)
     for v, u in [(10, 10), (9, 10), (11, 10), (10, 9), (10, 11)]:  # the hole and its 4-neighbours
         assert np.all(n[v, u] == 0)
     assert np.all(n[5:-5, 39:41] == 0)
@@ -57,7 +64,7 @@ def test_normals_of_a_far_floor_at_a_coarse_level_survive_with_the_focal_length(
     floor = z > 0
     vert = backproject(z, Kc)
     fixed = normal_map(vert)
-    scaled = normal_map(vert, f_px=float(Kc[0, 0]))
+    scaled = _normals(z, Kc)
     inner = floor[1:-1, 1:-1] & floor[2:, 1:-1] & floor[:-2, 1:-1]
     assert np.count_nonzero(np.linalg.norm(fixed[1:-1, 1:-1][inner], axis=-1)) < 0.6 * inner.sum()
     ok = np.linalg.norm(scaled[1:-1, 1:-1][inner], axis=-1) > 0.99
@@ -66,7 +73,7 @@ def test_normals_of_a_far_floor_at_a_coarse_level_survive_with_the_focal_length(
     assert np.abs(up[:, 1]).min() > 0.99  # the floor's normal is the camera's y axis
     step = np.full((60, 80), 2.0, np.float32)
     step[:, 40:] = 3.0
-    assert np.all(normal_map(backproject(step, Kc), f_px=float(Kc[0, 0]))[5:-5, 39:41] == 0)
+    assert np.all(_normals(step, Kc)[5:-5, 39:41] == 0)
 
 
 def test_downsample_ignores_holes():
