@@ -84,3 +84,18 @@ def geometry_reference(vertex: np.ndarray, normal: np.ndarray) -> np.ndarray:
     out[:, 4:7] = normal
     out[:, 7] = np.any(normal != 0, axis=1)
     return out
+
+
+def wavy_depth(rng: np.random.Generator, h: int = 48, w: int = 64, far_from: int | None = None):
+    """``(depth, K)``: a wavy surface about 1 m away with a tenth of its pixels missing (3 m
+    farther from column ``far_from`` on when given), and intrinsics of a 64 x 48 view scaled
+    to ``w`` x ``h``."""
+    K = np.array([[60.0 * w / 64, 0.0, 31.5 * w / 64], [0.0, 60.0 * h / 48, 23.5 * h / 48],
+                  [0.0, 0.0, 1.0]])  # fmt: skip
+    v, u = np.mgrid[0:h, 0:w]
+    depth = 1.0 + 0.3 * np.sin(u / 6.0) * np.cos(v / 5.0)
+    if far_from is not None:
+        depth += 3.0 * (u >= far_from)
+    depth = depth.astype(np.float32)
+    depth[rng.random((h, w)) < 0.1] = 0.0
+    return depth, K

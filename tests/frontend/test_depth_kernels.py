@@ -128,18 +128,11 @@ def test_downsample_is_the_numpy_it_replaced(seed, shape):
 def test_geometry_rows_are_vertex_map_and_normal_map(seed, shape):
     from slam.frontend.pointcloud import geometry_rows
     from slam.frontend.weighted_icp import vertex_map
-    from tests.frontend.reference import geometry_reference, normal_map
+    from tests.frontend.reference import geometry_reference, normal_map, wavy_depth
 
     rng = np.random.default_rng(seed)
     h, w = shape
-    K = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]]) * [
-        [w / 64],
-        [h / 48],
-        [1],
-    ]
-    v, u = np.mgrid[0:h, 0:w]
-    depth = (1.0 + 0.3 * np.sin(u / 6.0) * np.cos(v / 5.0)).astype(np.float32)
-    depth[rng.random((h, w)) < 0.1] = 0.0
+    depth, K = wavy_depth(rng, h, w)
     depth[:, w // 2 :] += np.float32(rng.choice([0.0, 0.04, 0.5]))  # a depth step, or not
     vertex = vertex_map(depth, K)
     normal = normal_map(vertex, f_px=float(K[0, 0])).reshape(-1, 3)
@@ -151,13 +144,9 @@ def test_geometry_rows_are_vertex_map_and_normal_map(seed, shape):
 @given(st.integers(0, 2**32 - 1))
 def test_information_is_the_numpy_it_replaced(seed):
     from slam.frontend.weighted_icp import depth_information
+    from tests.frontend.reference import wavy_depth
 
-    rng = np.random.default_rng(seed)
-    h, w = 48, 64
-    K = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]])
-    v, u = np.mgrid[0:h, 0:w]
-    depth = (1.0 + 0.3 * np.sin(u / 6.0) * np.cos(v / 5.0) + 3.0 * (u > 40)).astype(np.float32)
-    depth[rng.random((h, w)) < 0.1] = 0.0
+    depth, K = wavy_depth(np.random.default_rng(seed), far_from=41)
     noise = DepthNoise()
     H, median_z = depth_information(depth, K, 3.5, noise)
     ref_H, ref_median_z = _information_reference(depth, K, 3.5, noise)

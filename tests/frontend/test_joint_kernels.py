@@ -151,13 +151,11 @@ def _warp_reference(V, K, T, intensity, depth, gate):
 def test_warp_accumulate_is_the_bilinear_warp_it_replaced(seed):
     from slam.frontend.joint_kernels import warp_accumulate
     from slam.frontend.weighted_icp import vertex_map
+    from tests.frontend.reference import wavy_depth
 
     rng = np.random.default_rng(seed)
-    h, w = 48, 64
-    K = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]])
-    v, u = np.mgrid[0:h, 0:w]
-    depth = (1.0 + 0.3 * np.sin(u / 6.0) * np.cos(v / 5.0)).astype(np.float32)
-    depth[rng.random((h, w)) < 0.1] = 0.0
+    depth, K = wavy_depth(rng)
+    h, w = depth.shape
     intensity = rng.random((h, w)).astype(np.float32)
     T = exp_se3(np.r_[rng.normal(0.0, 0.03, 3), rng.normal(0.0, 0.03, 3)])
     V = vertex_map(depth, K).reshape(-1, 3)
