@@ -849,3 +849,43 @@ def test_the_kernels_prepared_before_a_run_are_the_ones_alignment_calls(world, m
     att.photometric = 1.0
     align_to_model(tracker.cfg, att, model, world.poses[11], False)
     assert {d.__name__: len(d.signatures) for d in kernels._dispatchers()} == prepared
+
+
+class _CountingModel:
+    """A model that counts its ray-casts."""
+
+    def __init__(self, model):
+        self.model, self.raycasts = model, 0
+        self.depth_max_m = model.depth_max_m
+
+    def raycast(self, *args, **kwargs):
+        self.raycasts += 1
+        return self.model.raycast(*args, **kwargs)
+
+
+def test_a_frames_depth_render_serves_its_later_alignments_nearby(world, model):
+    """A second model alignment of a frame that starts within a few centimetres of a depth-only
+    one aligns to the first's render (no ray-cast) and lands as near the truth as a fresh
+    render takes it;
+    a start farther away, or colour from the model's own render, ray-casts again."""
+    tracker = _tracker_at(world, 10, photometric_reference="keyframe")
+    counting = _CountingModel(model)
+    att = tracker.predict(tracker.prepare(world.frame(11)))
+    off = exp_se3(np.array([0.01, -0.01, 0.0, 0.0, np.radians(1.0), 0.0]))
+    align_to_model(tracker.cfg, att, counting, world.poses[11] @ off, False)
+    assert counting.raycasts == 1
+    near = world.poses[11] @ inv_T(off)  # 2.8 cm, 2 deg from the first start
+    T_reused, _, overlap = align_to_model(tracker.cfg, att, counting, near, False)
+    assert counting.raycasts == 1 and overlap > 0.7
+    fresh = tracker.predict(tracker.prepare(world.frame(11)))
+    T_fresh, _, _ = align_to_model(tracker.cfg, fresh, model, near, False)
+    # (measured: 0.3 mm from the truth reused, 1.0 mm rendered afresh)
+    assert _errors(T_reused, world.poses[11])[0] <= _errors(T_fresh, world.poses[11])[0] + 2e-4
+    # colour joining from the references: the depth render serves too
+    att.photometric = 1.0
+    T_joint, _, _ = align_to_model(tracker.cfg, att, counting, near, False)
+    assert counting.raycasts == 1 and _errors(T_joint, world.poses[11])[0] < 1e-3
+    # too far: rendered again
+    far = world.poses[11] @ exp_se3(np.array([0.0, 0.0, 0.0, 0.06, 0.0, 0.0]))
+    align_to_model(tracker.cfg, att, counting, far, False)
+    assert counting.raycasts == 2
