@@ -19,7 +19,7 @@ from slam.config import TrackingConfig
 from slam.frontend.frame import PreparedFrame, depth_noise
 from slam.frontend.icp import IcpResult, projective_agreement
 from slam.frontend.keyframe_ransac import FeatureEvidence, KeyframeRansac
-from slam.frontend.model import ModelView, TrackingModel
+from slam.frontend.model import TrackingModel
 from slam.frontend.photometric import colour_pose, mean_warped_intensity, photometric_costs
 from slam.frontend.ransac import RansacResult
 from slam.frontend.rgbd_image import RgbdImage, grey
@@ -28,11 +28,6 @@ from slam.keyframe import FeatureSet, Keyframe
 from slam.records import TrackingStatus
 
 log = logging.getLogger(__name__)
-
-#: A depth-only alignment's render serves a later alignment of the same frame that starts within
-#: this of where it was made (metres, degrees): 3 deg is 14 of 320 pixels at fx 260, 5 cm as
-#: much at 1 m, so the render still covers ~95% of the view at the new start.
-REUSE_TRANSLATION_M, REUSE_ROTATION_DEG = 0.05, 3.0
 
 #: An estimate: ``T_world_cam``, its frame-to-model ICP and its verified overlap with the model.
 Estimate = tuple[np.ndarray, IcpResult, float]
@@ -89,9 +84,6 @@ class Attempt:
     # the departure of the estimate kept from the prediction as an acceleration (m/s^2;
     # Tracker.check_motion), None when there was no prediction to depart from
     acceleration: float | None = None
-    # the model renders this attempt's depth-only alignments were made against, with the pose
-    # each was rendered at (:meth:`render_near`)
-    depth_renders: list[tuple[np.ndarray, ModelView]] = field(default_factory=list)
 
     def keep(self, T_world_cam: np.ndarray, icp: IcpResult, overlap: float) -> None:
         self.T_world_cam, self.icp, self.overlap = T_world_cam, icp, overlap
@@ -100,23 +92,6 @@ class Attempt:
         """The estimate overlaps the model and ICP found enough correspondences."""
         assert self.icp is not None
         return self.overlap >= cfg.icp.min_overlap and self.icp.fitness >= cfg.icp.min_fitness
-
-    def render_near(self, T_world_guess: np.ndarray) -> tuple[np.ndarray, ModelView] | None:
-        """A render of this frame's depth-only alignments made within
-        :data:`REUSE_TRANSLATION_M` / :data:`REUSE_ROTATION_DEG` of ``T_world_guess``, with the
-        pose it was rendered at; None when there is none. Only a depth-only alignment's render
-        serves again: there the frame's depth constrains every direction, so a render from a
-        start centimetres away aligns to the same pose. Where depth is blind (colour joins from
-        the start: a corridor, a wall) the edges of the render decide along the blind axis, and
-        a render from another start let a corridor slide 5 cm (docs/decisions.md)."""
-        for T_render, render in self.depth_renders:
-            d = inv_T(T_render) @ T_world_guess
-            if (
-                translation_norm(d) < REUSE_TRANSLATION_M
-                and rotation_angle_deg(d) < REUSE_ROTATION_DEG
-            ):
-                return T_render, render
-        return None
 
     def features(self) -> FeatureSet | None:
         """The frame's features, from now on used by this attempt (None without colour)."""
@@ -219,26 +194,27 @@ def align_to_model(
     ``max_model_correction`` of a ``trusted`` guess (one measured by frame-to-frame ICP or
     RANSAC, not merely predicted) is distrusted: the guess is kept."""
     p = att.frame
+    w, h = p.size
     joint = joint_weight(cfg, att)
     refs = att.references if joint is not None else []
-    T_render, render = _render(att, model, T_world_guess, joint is not None, bool(refs))
-    # the guess in the render's camera
-    init = np.eye(4) if T_render is T_world_guess else inv_T(T_render) @ T_world_guess
+    render = model.raycast(
+        p.K_track, w, h, T_world_guess, False, joint is not None and not refs,
+        frustum_depth_m=p.depth_m, min_weight=att.min_weight,
+    )  # fmt: skip
     if refs:
-        # the references' real images seen from the render's camera, through the model's
-        # depth: a TSDF's own colour is smeared along the rays it was fused from (unseen
-        # pixels: NaN)
+        # the references' real images seen from the guess, through the model's depth: a
+        # TSDF's own colour is smeared along the rays it was fused from (unseen pixels: NaN)
         grey_ref = mean_warped_intensity(
-            render.depth_m, p.K_track, T_render, refs, cfg.icp.max_correspondence_m
+            render.depth_m, p.K_track, T_world_guess, refs, cfg.icp.max_correspondence_m
         )
         target = RgbdImage(render.depth_m, grey_ref, p.K_track, len(cfg.icp.iterations))
-        icp = p.joint_to(target, init, cfg, joint, iterations=att.iterations)
+        icp = p.joint_to(target, np.eye(4), cfg, joint, iterations=att.iterations)
     elif joint is not None and render.color is not None:
         target = RgbdImage(render.depth_m, grey(render.color), p.K_track, len(cfg.icp.iterations))
-        icp = p.joint_to(target, init, cfg, joint, iterations=att.iterations)
+        icp = p.joint_to(target, np.eye(4), cfg, joint, iterations=att.iterations)
     else:
-        icp = p.icp_to(render.depth_m, init, cfg, att.iterations)
-    step = inv_T(init) @ icp.T_target_source  # the correction of the guess
+        icp = p.icp_to(render.depth_m, np.eye(4), cfg, att.iterations)
+    step = icp.T_target_source
     if trusted and (
         translation_norm(step) > cfg.icp.max_model_correction_m
         or rotation_angle_deg(step) > cfg.icp.max_model_correction_deg
@@ -246,35 +222,13 @@ def align_to_model(
         step = np.eye(4)
         att.status.model_rejected = True
     score, rmse = projective_agreement(
-        p.depth_m, render.depth_m, p.K_track, init @ step, cfg.icp.inlier_threshold_m,
+        p.depth_m, render.depth_m, p.K_track, step, cfg.icp.inlier_threshold_m,
         noise=depth_noise(cfg), source_max_m=model.depth_max_m,
     )  # fmt: skip
     # the ICP's residual as measured against the model, in metres (Open3D's inlier_rmse is
     # not: 1e-5 "m" on Kinect data)
     icp = dataclasses.replace(icp, inlier_rmse=rmse)
     return T_world_guess @ step, icp, score
-
-
-def _render(
-    att: Attempt, model: TrackingModel, T_world_guess: np.ndarray, joint: bool, refs: bool
-) -> tuple[np.ndarray, ModelView]:
-    """The model's render an alignment from ``T_world_guess`` aligns to, and the pose it was
-    rendered at: a depth-only alignment's render of this frame near the guess when the
-    alignment needs no model colour (depth alone, or colour from the references), else a
-    ray-cast at the guess (with colour when colour joins and there are no references)."""
-    if not joint or refs:
-        near = att.render_near(T_world_guess)
-        if near is not None:
-            return near
-    p = att.frame
-    w, h = p.size
-    render = model.raycast(
-        p.K_track, w, h, T_world_guess, False, joint and not refs,
-        frustum_depth_m=p.depth_m, min_weight=att.min_weight,
-    )  # fmt: skip
-    if not joint:
-        att.depth_renders.append((T_world_guess, render))
-    return T_world_guess, render
 
 
 def align_from(
