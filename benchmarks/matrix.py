@@ -16,7 +16,8 @@ noise: ``EXACT``), with colour not synchronised with depth (``UNSYNCED``), and a
 Kinect v1 records it (``HANDHELD``: a recorded hand's motion, rolling shutter, blur, exposure,
 Kinect depth), and each real sequence recorded at video rate runs again on every third frame
 (``-x3``: real motion three times as fast). ``colour_frames`` counts the frames colour
-joined depth in (a check fired, or depth was blind). Synthetic sequences are generated once into the cache
+joined depth in (a check fired, or depth was blind), ``check_frames`` those whose estimate on
+depth alone broke a motion check (``TrackingStatus.motion_check``). Synthetic sequences are generated once into the cache
 folder (``$SLAM_CACHE_DIR``/matrix). Writes ``benchmarks/results/matrix[-TAG].json`` and prints a
 Markdown table.
 
@@ -214,6 +215,7 @@ out.update(
     step_err_worst_frame=int(np.flatnonzero(ok)[worst + 1]) if len(err) else None,
     true_step_median_m=float(np.median(true_step)) if len(err) else None,
     colour_frames=sum(1 for s in res.tracking if getattr(s, "photometric", False)),
+    check_frames=sum(1 for s in res.tracking if getattr(s, "motion_check", "")),
     peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
 )
 print(json.dumps(out))

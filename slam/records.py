@@ -40,6 +40,10 @@ class TrackingStatus:
     constraint_ratio: float = 0.0
     photometric: bool = False  # colour constrained the pose (geometry was blind)
     model_rejected: bool = False
+    # the motion check the estimate on depth alone broke ("acceleration": past what a hand
+    # can do; "unusual": past this recording's own pattern), "" when it broke none or was
+    # not checked (slam.frontend.colour_stages.check_motion)
+    motion_check: str = ""
     keyframe: bool = False
     ms: float = 0.0
 

@@ -61,6 +61,7 @@ def check_motion(
     what = _breaks_pattern(cfg, state, att, departure, bound)
     if what is None:
         return
+    att.status.motion_check = "acceleration" if departure > bound else "unusual"
     if att.frame.photometric_image(len(cfg.icp.iterations)) is None:
         _warn_unconfirmed(att, what, bound, "there is no registered colour to check it")
         return

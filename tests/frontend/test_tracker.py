@@ -349,6 +349,7 @@ def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(worl
     att.ok = True
     tracker.check_motion(att, model)
     assert att.status.photometric and att.ok and att.photometric > 0
+    assert att.status.motion_check == "acceleration"  # recorded in tracking.csv
     dt, dr = _errors(att.T_world_cam, world.poses[10])
     assert dt < 0.003 and dr < 0.2
     # within the bound (a slower camera, or a longer interval), depth alone stands
@@ -358,6 +359,7 @@ def test_a_step_that_breaks_the_motion_pattern_is_aligned_again_with_colour(worl
     calm.ok = True
     tracker.check_motion(calm, model)
     assert not calm.status.photometric and calm.T_world_cam is slid
+    assert calm.status.motion_check == ""
     # without registered colour there is nothing to check with
     blind = Tracker(TrackingConfig(), has_color=True, color_registered=False)
     blind.reset(world.frame(9), world.poses[9])
@@ -396,7 +398,7 @@ def test_a_step_unusual_for_the_recording_is_checked_with_colour(world, model):
     # depth slid 5 mm: unusual here, within the bound: colour returns it to the prediction
     slid = world.poses[10] @ _motion(0.005, 0.0)
     att = attempt(slid)
-    assert att.status.photometric and att.ok
+    assert att.status.photometric and att.ok and att.status.motion_check == "unusual"
     dt, dr = _errors(att.T_world_cam, world.poses[10])
     assert dt < 0.002 and dr < 0.2
     # the motion pattern goes on from the estimate kept, not the slide colour undid
