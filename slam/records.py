@@ -38,7 +38,8 @@ class TrackingStatus:
     # model ICP's pose (rotations as motion at the scene's depth; large: a direction that
     # depth alone hardly constrains, see slam.frontend.weighted_icp.constraint)
     constraint_ratio: float = 0.0
-    photometric: bool = False  # colour constrained the pose (geometry was blind)
+    # colour joined depth in the estimate kept (depth was blind, or broke a motion check)
+    photometric: bool = False
     model_rejected: bool = False
     # the motion check the estimate on depth alone broke ("acceleration": past what a hand
     # can do; "unusual": past this recording's own pattern), "" when it broke none or was

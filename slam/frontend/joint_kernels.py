@@ -53,12 +53,12 @@ def _store_row(J, k, qx, qy, qz, gx, gy, gz):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def geometric_rows(
-    points, R, t, intrinsics, depth, geometry, shape, gate, geometric, J, r, z, visible
+    points, R, t, intrinsics, depth, geometry, shape, gate, J, r, z, visible
 ):  # pragma: no cover - compiled
     """The source ``points`` (N x 3, float32) moved by ``(R, t)`` and associated with the
     target pixel they project to (``intrinsics``: fx, fy, cx, cy as float32; ``shape``:
-    height, width) where the target has depth (``depth``: H*W, 0 = none). With ``geometric``,
-    each correspondence whose point-to-plane residual against the target's vertex and known
+    height, width) where the target has depth (``depth``: H*W, 0 = none). Each correspondence
+    whose point-to-plane residual against the target's vertex and known
     normal (``geometry``: :attr:`~slam.frontend.rgbd_image._TargetLevel.geometry`) is below
     ``gate`` gets row ``k`` of ``J`` (N x 6), its residual ``r[k]`` and its depth ``z[k]``;
     every correspondence within ``gate`` of the target's depth gets its point's index in
@@ -83,7 +83,7 @@ def geometric_rows(
         if abs(zt - qz) < gate:
             visible[n_vis] = i
             n_vis += 1
-        if geometric and geometry[pix, 7] > 0:
+        if geometry[pix, 7] > 0:
             nx, ny, nz = geometry[pix, 4], geometry[pix, 5], geometry[pix, 6]
             res = (qx - geometry[pix, 0]) * nx + (qy - geometry[pix, 1]) * ny
             res += (qz - geometry[pix, 2]) * nz

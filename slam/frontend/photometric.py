@@ -209,7 +209,7 @@ def _term_equations(
     R, t = T[:3, :3].astype(np.float32), T[:3, 3].astype(np.float32)
     _, n_geo, n_vis = geometric_rows(
         src.points, R, t, intrinsics, tgt.depth, tgt.geometry, tgt.shape, terms.gate,
-        True, J, r, z, visible,
+        J, r, z, visible,
     )  # fmt: skip
     if n_geo < 6:  # point-to-plane against the projectively associated target vertex
         return None

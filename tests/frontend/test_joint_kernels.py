@@ -50,7 +50,7 @@ def test_geometric_rows_are_the_projective_point_to_plane_correspondences():
     J, r, z = np.empty((n, 6), np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
     visible = np.empty(n, np.int64)
     n_assoc, n_geo, n_vis = geometric_rows(
-        src.points, R, t, intrinsics, tgt.depth, tgt.geometry, tgt.shape, gate, True,
+        src.points, R, t, intrinsics, tgt.depth, tgt.geometry, tgt.shape, gate,
         J, r, z, visible,
     )  # fmt: skip
     # the same in numpy
@@ -71,12 +71,6 @@ def test_geometric_rows_are_the_projective_point_to_plane_correspondences():
     np.testing.assert_allclose(J[:n_geo], _rows(Q[idx[geo]], g[geo, 4:7]), atol=1e-5)
     seen = idx[np.abs(tgt.depth[pix] - Q[idx, 2]) < gate]
     assert np.array_equal(visible[:n_vis], seen)
-    # without the geometric term nothing is written but the visible points
-    n_assoc2, n_geo2, n_vis2 = geometric_rows(
-        src.points, R, t, intrinsics, tgt.depth, np.zeros((0, 8), np.float32), tgt.shape, gate,
-        False, J, r, z, visible,
-    )  # fmt: skip
-    assert (n_assoc2, n_geo2, n_vis2) == (n_assoc, 0, n_vis)
 
 
 def test_photometric_rows_sample_as_remap_and_skip_unseen_pixels():
@@ -120,7 +114,7 @@ def test_kernels_run_on_a_real_sized_view():
     intrinsics = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], np.float32)
     eye, zero = np.eye(3, dtype=np.float32), np.zeros(3, np.float32)
     counts = geometric_rows(src.points, eye, zero, intrinsics, tgt.depth, tgt.geometry,
-                            tgt.shape, np.float32(0.05), True, J, r, z, visible)  # fmt: skip
+                            tgt.shape, np.float32(0.05), J, r, z, visible)  # fmt: skip
     assert counts[0] == counts[2] == n  # every point on its own pixel, at its own depth
     m = photometric_rows(src.points, src.intensity, visible, counts[2], eye, zero, intrinsics,
                          tgt.photo, J, r)  # fmt: skip
