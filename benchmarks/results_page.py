@@ -125,9 +125,9 @@ def render(matrix: dict, source: Path) -> str:
 
 
 def extra_sections() -> list[str]:
-    """The localisation, mesh-accuracy and kernel tables, from their own benchmarks' latest
-    results (``localisation-*.json``, ``mesh-accuracy-per-view.json``, ``kernels.json``), when
-    present."""
+    """The localisation, mesh-accuracy, reference-speed and kernel tables, from their own
+    benchmarks' latest results (``localisation-*.json``, ``mesh-accuracy-per-view.json``,
+    ``alternate-vs-1122-*.json``, ``kernels.json``), when present."""
     out: list[str] = []
     loc = sorted(RESULTS.glob("localisation-*.json"))
     if loc:
@@ -165,6 +165,7 @@ def extra_sections() -> list[str]:
             "|---|---:|---:|",
         ]  # fmt: skip
         out += [f"| `{n}` | {r['median_mm']:.2f} | {r['p90_mm']:.2f} |" for n, r in rows.items()]
+    out += _reference_speed()
     kern = RESULTS / "kernels.json"
     if kern.is_file():
         d = json.loads(kern.read_text())
@@ -182,6 +183,43 @@ def extra_sections() -> list[str]:
             f"| {n} | {r['numpy_ms']:.2f} | {r['compiled_ms']:.2f} | {r['ratio']:.2f} |"
             for n, r in d["rows"].items()
         ]
+    return out
+
+
+def _reference_speed() -> list[str]:
+    """Today's code against the code of 2026-11-22 (2c63699, issue 54's reference), from
+    ``alternate-vs-1122-*.json`` (``benchmarks/alternate.py SEQ --a-rev 2c63699``)."""
+    paths = sorted(RESULTS.glob("alternate-vs-1122-*.json"))
+    if not paths:
+        return []
+    out = [
+        "", "## Against the code of 2026-11-22",
+        "",
+        "`python benchmarks/alternate.py SEQ --a-rev 2c63699 --repeats N [--b-config YAML]`: "
+        "alternating fresh runs, old (A) and today's code (B); time ratio B / A (median of "
+        "the pairs), final / odometry ATE in mm (range over the runs).",
+        "",
+        "| sequence | today's config | pairs | time B / A | A: final / odometry | "
+        "B: final / odometry |",
+        "|---|---|---:|---:|---|---|",
+    ]  # fmt: skip
+
+    def ranges(runs: list[dict]) -> str:
+        def span(key: str) -> str:
+            lo, hi = (1e3 * f(r[key] for r in runs) for f in (min, max))
+            return f"{lo:.1f}" if round(lo, 1) == round(hi, 1) else f"{lo:.1f}-{hi:.1f}"
+
+        return f"{span('ate_rmse_m')} / {span('ate_rmse_odometry_m')}"
+
+    for path in paths:
+        d = json.loads(path.read_text())
+        pairs = d["pairs"]
+        config = Path(d["b"]["config"]).stem if d["b"]["config"] else "default"
+        out.append(
+            f"| `{d['sequence']}` | {config} | {len(pairs)} | "
+            f"{d['median_seconds_ratio_b_over_a']:.3f} | {ranges([p['a'] for p in pairs])} | "
+            f"{ranges([p['b'] for p in pairs])} |"
+        )
     return out
 
 

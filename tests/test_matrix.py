@@ -133,3 +133,24 @@ def test_the_results_page_is_written_from_a_matrix_result(tmp_path, monkeypatch)
     )
     assert "| `tum-fr1-xyz` | 792 | 0.0109 / **0.0085 m** | 15.4 | 1040 | 0.0220 m |" in new
     assert "wall-x1-s0" not in new and "old table" not in new
+
+
+def test_the_results_page_compares_with_the_reference_code(tmp_path, monkeypatch):
+    """The page's table against the code of 2026-11-22: one row per alternating benchmark,
+    the median time ratio and each arm's ATE ranges in millimetres."""
+    page = _load("results_page")
+    run = {"seconds": 1.0, "ate_rmse_m": 0.0093, "ate_rmse_odometry_m": 0.0112}
+    faster = dict(run, ate_rmse_m=0.0085)
+    result = {
+        "sequence": "tum-fr1-xyz",
+        "b": {"config": "benchmarks/motion_check_colour_off.yaml"},
+        "pairs": [{"a": run, "b": faster}, {"a": run, "b": dict(faster, ate_rmse_m=0.0086)}],
+        "median_seconds_ratio_b_over_a": 0.97,
+    }
+    monkeypatch.setattr(page, "RESULTS", tmp_path)
+    assert page._reference_speed() == []  # none measured: no section
+    (tmp_path / "alternate-vs-1122-xyz.json").write_text(json.dumps(result))
+    lines = page._reference_speed()
+    assert "## Against the code of 2026-11-22" in lines
+    row = "| `tum-fr1-xyz` | motion_check_colour_off | 2 | 0.970 | 9.3 / 11.2 | 8.5-8.6 / 11.2 |"
+    assert lines[-1] == row
